@@ -1,0 +1,28 @@
+"""daq: channels, sources, multisine excitation and MCAP recording.
+
+Conventions (shared by every fnsi-lab package)
+----------------------------------------------
+- Time blocks are ``(n_samples, n_channels)``, row-major, physical units (SI unless a
+  channel says otherwise); periodic records are ``(n_realizations, n_periods, n_samples,
+  n_channels)``.
+- Times are integer nanoseconds; rates are in Hz.
+- Force channels (``quantity == 'force'``) are the inputs, the others the responses.
+
+The flow: a :class:`~daq.source.Source` (simulated structure, CAN, serial, replay) yields
+:class:`~daq.block.Block` objects; :func:`daq.acquisition.acquire` fans them out through
+bounded queues to the MCAP recorder (:mod:`daq.recording`) and to any analysis tap.
+Importing this package never imports an optional driver (see :mod:`daq.registry`).
+"""
+
+from daq.block import Block
+from daq.channels import ChannelInfo
+from daq.config import ExcitationConfig, ExperimentConfig, SourceConfig, load_experiment
+from daq.multisine import Multisine, multisine
+from daq.registry import make_source, source_class
+from daq.source import Source, SourceEvent, SourceStats
+
+__all__ = [
+    "Block", "ChannelInfo", "ExcitationConfig", "ExperimentConfig", "SourceConfig",
+    "load_experiment", "Multisine", "multisine", "make_source", "source_class", "Source",
+    "SourceEvent", "SourceStats",
+]

@@ -1,0 +1,147 @@
+"""Periodic multisine excitation: flat amplitude on the DFT lines of one period in a band.
+
+Pure numpy. Axis order: ``(n_realizations, n_samples)`` for the time signal, samples of
+consecutive periods concatenated.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Multisine:
+    """A generated multisine.
+
+    Attributes
+    ----------
+    signal : ndarray, shape (n_realizations, n_periods * samples_per_period)
+        Force time series, each realization ``n_periods`` identical periods long.
+    excited_lines : ndarray of int, shape (n_excited,)
+        DFT bin indices k (frequency ``k * sample_rate_hz / samples_per_period``) that carry
+        energy, the same for every realization.
+    phases_rad : ndarray, shape (n_realizations, n_excited)
+        Phase of each excited line.
+    sample_rate_hz, samples_per_period, n_periods, rms, band_hz, seed
+        The definition, as requested.
+    """
+
+    signal: np.ndarray
+    excited_lines: np.ndarray
+    phases_rad: np.ndarray
+    sample_rate_hz: float
+    samples_per_period: int
+    n_periods: int
+    rms: float
+    band_hz: tuple[float, float]
+    seed: int | None
+
+    @property
+    def n_realizations(self) -> int:
+        """Number of realizations R."""
+        return int(self.signal.shape[0])
+
+    @property
+    def excited_frequencies_hz(self) -> np.ndarray:
+        """Frequencies of the excited lines."""
+        return self.excited_lines * self.sample_rate_hz / self.samples_per_period
+
+    def period(self, realization: int = 0) -> np.ndarray:
+        """One period of one realization, shape (samples_per_period,)."""
+        return self.signal[realization, : self.samples_per_period]
+
+
+def excited_lines(samples_per_period: int, sample_rate_hz: float,
+                  band_hz: tuple[float, float]) -> np.ndarray:
+    """DFT bins k with ``f1 <= k fs / N <= f2``, DC and Nyquist excluded.
+
+    Returns
+    -------
+    ndarray of int, shape (n_excited,)
+    """
+    n = int(samples_per_period)
+    k = np.arange(1, (n - 1) // 2 + 1)  # strictly below Nyquist
+    f = k * sample_rate_hz / n
+    tol = 1e-9 * sample_rate_hz / n  # band edges given on a line must count as inside
+    return k[(f >= band_hz[0] - tol) & (f <= band_hz[1] + tol)]
+
+
+def multisine(samples_per_period: int, sample_rate_hz: float, band_hz: tuple[float, float],
+              rms: float, *, n_periods: int = 1, n_realizations: int = 1,
+              seed: int | None = 0,
+              phases: Literal["random", "schroeder"] = "random") -> Multisine:
+    """Generate a periodic multisine with a flat amplitude spectrum in ``band_hz``.
+
+    Parameters
+    ----------
+    samples_per_period : int
+        N, samples per period.
+    sample_rate_hz : float
+        Sampling rate fs.
+    band_hz : (float, float)
+        Excited band [f1, f2]; every DFT line of one period inside it is excited.
+    rms : float
+        Exact RMS of the signal (unit of the force).
+    n_periods : int, optional
+        P, identical periods per realization.
+    n_realizations : int, optional
+        R, independent phase draws (Schroeder phases give identical realizations).
+    seed : int or None, optional
+        Seed of ``numpy.random.default_rng``: the same seed gives the same signal.
+    phases : {'random', 'schroeder'}, optional
+        Uniform random phases in [0, 2 pi), or Schroeder's low-crest-factor law
+        ``phi_k = -pi k (k - 1) / K``.
+
+    Returns
+    -------
+    Multisine
+
+    Raises
+    ------
+    ValueError
+        If no line falls in the band or a size is not positive.
+
+    Notes
+    -----
+    One period is built in the frequency domain, ``X(k) = A exp(j phi_k)`` on the excited
+    lines and 0 elsewhere, and transformed with ``numpy.fft.irfft``; the amplitude A is
+    then set so that the RMS is exact. Because every frequency is a multiple of
+    ``fs / N``, the signal is exactly N-periodic.
+
+    Examples
+    --------
+    >>> ms = multisine(8192, 1000.0, (5.0, 50.0), 100.0, n_periods=6, seed=1)
+    >>> ms.signal.shape, round(float(ms.signal[0].std()), 6)
+    ((1, 49152), 100.0)
+    """
+    n = int(samples_per_period)
+    if n < 4 or n_periods < 1 or n_realizations < 1:
+        raise ValueError("samples_per_period >= 4, n_periods >= 1 and n_realizations >= 1 are required")
+    if not rms > 0:
+        raise ValueError(f"rms must be > 0, got {rms}")
+    if phases not in ("random", "schroeder"):
+        raise ValueError(f"phases must be 'random' or 'schroeder', got {phases!r}")
+    lines = excited_lines(n, sample_rate_hz, band_hz)
+    if lines.size == 0:
+        raise ValueError(f"no DFT line of an {n}-sample period at {sample_rate_hz} Hz lies in {band_hz} Hz")
+    rng = np.random.default_rng(seed)
+    n_lines = lines.size
+    if phases == "random":
+        phase = rng.uniform(0.0, 2 * np.pi, size=(n_realizations, n_lines))
+    else:
+        idx = np.arange(1, n_lines + 1)
+        phase = np.broadcast_to(-np.pi * idx * (idx - 1) / n_lines, (n_realizations, n_lines)).copy()
+    spectrum = np.zeros((n_realizations, n // 2 + 1), dtype=complex)
+    spectrum[:, lines] = np.exp(1j * phase)
+    one_period = np.fft.irfft(spectrum, n=n, axis=1)
+    # Parseval: every excited line of unit amplitude contributes 2/N^2 to the mean square.
+    unit_rms = np.sqrt(2.0 * n_lines) / n
+    one_period *= rms / unit_rms
+    signal = np.tile(one_period, (1, n_periods))
+    return Multisine(signal=signal, excited_lines=lines, phases_rad=phase,
+                     sample_rate_hz=float(sample_rate_hz), samples_per_period=n,
+                     n_periods=int(n_periods), rms=float(rms),
+                     band_hz=(float(band_hz[0]), float(band_hz[1])), seed=seed)

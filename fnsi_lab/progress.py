@@ -1,0 +1,67 @@
+"""A dependency-free progress bar for long work (order sweeps, simulations, replays).
+
+Writes to stderr; redraws in place on a terminal and prints a few plain lines otherwise
+(CI logs stay short). Use as an iterator wrapper or call :meth:`Progress.update`.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from typing import IO, Iterable, Iterator, TypeVar
+
+T = TypeVar("T")
+
+
+class Progress:
+    """Progress over ``total`` steps.
+
+    Parameters
+    ----------
+    total : int
+        Number of steps.
+    label : str
+        Text before the bar.
+    enabled : bool
+        False makes every call a no-op (``--quiet``).
+    stream : file, optional
+        Defaults to ``sys.stderr``.
+    """
+
+    def __init__(self, total: int, label: str = "", *, enabled: bool = True,
+                 stream: IO[str] | None = None) -> None:
+        self.total = max(int(total), 1)
+        self.label = label
+        self.enabled = enabled
+        self.stream = stream or sys.stderr
+        self.done = 0
+        self._t0 = time.monotonic()
+        self._tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self._last_plain = -1
+
+    def update(self, n: int = 1, note: str = "") -> None:
+        """Advance by ``n`` steps."""
+        self.done = min(self.done + n, self.total)
+        if not self.enabled:
+            return
+        frac = self.done / self.total
+        elapsed = time.monotonic() - self._t0
+        if self._tty:
+            width = 28
+            bar = "#" * int(frac * width) + "-" * (width - int(frac * width))
+            self.stream.write(f"\r{self.label} [{bar}] {self.done}/{self.total} "
+                              f"{elapsed:5.1f}s {note}\x1b[K")
+            if self.done == self.total:
+                self.stream.write("\n")
+            self.stream.flush()
+        else:
+            quarter = int(frac * 4)
+            if quarter != self._last_plain:
+                self._last_plain = quarter
+                self.stream.write(f"{self.label}: {self.done}/{self.total} ({elapsed:.1f} s) {note}\n")
+                self.stream.flush()
+
+    def __call__(self, items: Iterable[T]) -> Iterator[T]:
+        for item in items:
+            yield item
+            self.update()
