@@ -1,0 +1,226 @@
+"""Nonlinear basis functions ``h_a`` and the extended input (spec §1.1, §1.2, §2.5).
+
+Each :class:`Nonlinearity` acts on a **signed** combination of measured output channels,
+``delta = L^T q`` (``L = {channel: weight}``; ``+1`` at DOF j and ``-1`` at DOF k for an
+element between j and k, ``+1`` alone for an element to ground). The restoring force of the
+element on the structure is ``c h(delta) L`` and ``c`` is the physical coefficient (N/m^3,
+N/m, N s^2/m^2, N...). Flipping the sign of ``L`` (and, for gaps, swapping the two
+clearances) describes the same physics and gives the same ``c``.
+
+Kinds
+-----
+``polynomial``
+    ``h = delta**exponent``; with ``signed: true``, ``h = |delta|**(exponent-1) delta``
+    (e.g. ``|x| x``). ``argument: velocity`` uses ``delta' = L^T q'`` instead.
+``trilinear``
+    Two known clearances ``(g_neg, g_pos)`` (positive distances), two coefficients named
+    ``NAME:neg`` and ``NAME:pos``:
+    ``h_neg = delta + g_neg if delta < -g_neg else 0``,
+    ``h_pos = delta - g_pos if delta > g_pos else 0``; restoring force
+    ``k_neg h_neg + k_pos h_pos``.
+``bilinear``
+    One-sided stop: ``side: pos`` gives ``h = delta - g if delta > g else 0``,
+    ``side: neg`` gives ``h = delta + g if delta < -g else 0``.
+``quadratic_damping``
+    ``h = |delta'| delta'``.
+``coulomb``
+    ``h = tanh(delta' / velocity_scale)`` (regularized Coulomb friction; ``c`` is the
+    friction force in N).
+
+``offset`` (m) is a known static relative position added to ``delta`` (needed for gaps and
+even polynomials when the outputs are accelerations, whose DC is lost; spec §2.5).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal, Mapping, Sequence
+
+import numpy as np
+
+from ident.errors import ChannelError, IdentError
+
+Kind = Literal["polynomial", "trilinear", "bilinear", "quadratic_damping", "coulomb"]
+KINDS: tuple[str, ...] = ("polynomial", "trilinear", "bilinear", "quadratic_damping", "coulomb")
+
+
+@dataclass(frozen=True)
+class Nonlinearity:
+    """One nonlinear element ``c h(L^T q, L^T q')``.
+
+    Parameters
+    ----------
+    name : str
+        Coefficient name (``NAME:neg``/``NAME:pos`` for trilinear).
+    kind : {'polynomial', 'trilinear', 'bilinear', 'quadratic_damping', 'coulomb'}
+    channels : mapping str -> float
+        Signed location vector ``L`` on measured output channels.
+    exponent : float
+        Polynomial exponent (default 3).
+    signed : bool
+        Polynomial only: ``|delta|**(exponent-1) delta``.
+    argument : {'displacement', 'velocity'}
+        Polynomial only: argument quantity.
+    clearances : (float, float)
+        Trilinear ``(g_neg, g_pos)`` in m, positive distances.
+    clearance : float
+        Bilinear gap in m (positive).
+    side : {'pos', 'neg'}
+        Bilinear side.
+    velocity_scale : float
+        Coulomb regularization velocity (m/s).
+    offset : float
+        Static relative position added to ``delta`` (m).
+    """
+
+    name: str
+    kind: Kind
+    channels: Mapping[str, float]
+    exponent: float = 3.0
+    signed: bool = False
+    argument: Literal["displacement", "velocity"] = "displacement"
+    clearances: tuple[float, float] = (0.0, 0.0)
+    clearance: float = 0.0
+    side: Literal["pos", "neg"] = "pos"
+    velocity_scale: float = 1e-3
+    offset: float = 0.0
+    truth: tuple[float, ...] | None = field(default=None, compare=False)
+
+    def __post_init__(self) -> None:
+        if self.kind not in KINDS:
+            raise IdentError(f"nonlinearity {self.name!r}: unknown kind {self.kind!r} "
+                             f"(use one of {list(KINDS)})")
+        if not self.channels:
+            raise IdentError(f"nonlinearity {self.name!r}: 'channels' is empty")
+        object.__setattr__(self, "channels", {str(k): float(v) for k, v in self.channels.items()})
+        if self.kind == "trilinear":
+            g = tuple(float(v) for v in self.clearances)
+            if len(g) != 2 or min(g) < 0:
+                raise IdentError(f"nonlinearity {self.name!r}: clearances must be two "
+                                 f"non-negative distances (g_neg, g_pos), got {self.clearances}")
+            object.__setattr__(self, "clearances", g)
+        if self.kind == "bilinear" and self.clearance < 0:
+            raise IdentError(f"nonlinearity {self.name!r}: clearance must be >= 0")
+        if self.kind == "coulomb" and not self.velocity_scale > 0:
+            raise IdentError(f"nonlinearity {self.name!r}: velocity_scale must be > 0")
+
+    @property
+    def coefficient_names(self) -> tuple[str, ...]:
+        """Names of the coefficients (columns) this element contributes."""
+        if self.kind == "trilinear":
+            return (f"{self.name}:neg", f"{self.name}:pos")
+        return (self.name,)
+
+    @property
+    def needs_velocity(self) -> bool:
+        """True if ``h`` depends on ``L^T q'``."""
+        return self.kind in ("quadratic_damping", "coulomb") or (
+            self.kind == "polynomial" and self.argument == "velocity")
+
+    def location_vector(self, output_names: Sequence[str]) -> np.ndarray:
+        """Signed location vector ``L`` on the outputs, shape ``(p,)``.
+
+        Raises
+        ------
+        ChannelError
+            If a channel of ``L`` is not among the outputs.
+        """
+        names = list(output_names)
+        vec = np.zeros(len(names))
+        for ch, w in self.channels.items():
+            if ch not in names:
+                raise ChannelError(f"nonlinearity {self.name!r}: channel {ch!r} is not a "
+                                   f"measured output (outputs: {names})")
+            vec[names.index(ch)] += w
+        return vec
+
+    def evaluate(self, delta: np.ndarray, delta_dot: np.ndarray | None = None) -> np.ndarray:
+        """Evaluate the basis column(s).
+
+        Parameters
+        ----------
+        delta : ndarray, shape (n_samples,)
+            ``L^T q`` (m), offset not yet added.
+        delta_dot : ndarray, shape (n_samples,), optional
+            ``L^T q'`` (m/s); required when :attr:`needs_velocity`.
+
+        Returns
+        -------
+        h : ndarray, shape (n_samples, n_columns)
+        """
+        d = np.asarray(delta, float) + self.offset
+        if self.needs_velocity:
+            if delta_dot is None:
+                raise IdentError(f"nonlinearity {self.name!r} needs velocities")
+            v = np.asarray(delta_dot, float)
+        if self.kind == "polynomial":
+            x = v if self.argument == "velocity" else d
+            if self.signed:
+                h = np.abs(x) ** (self.exponent - 1.0) * x
+            else:
+                h = np.sign(x) ** round(self.exponent) * np.abs(x) ** self.exponent \
+                    if float(self.exponent).is_integer() else np.abs(x) ** self.exponent
+            return h[:, None]
+        if self.kind == "trilinear":
+            gn, gp = self.clearances
+            h_neg = np.where(d < -gn, d + gn, 0.0)
+            h_pos = np.where(d > gp, d - gp, 0.0)
+            return np.stack([h_neg, h_pos], axis=1)
+        if self.kind == "bilinear":
+            g = self.clearance
+            if self.side == "pos":
+                return np.where(d > g, d - g, 0.0)[:, None]
+            return np.where(d < -g, d + g, 0.0)[:, None]
+        if self.kind == "quadratic_damping":
+            return (np.abs(v) * v)[:, None]
+        return np.tanh(v / self.velocity_scale)[:, None]  # coulomb
+
+
+Basis = tuple[Nonlinearity, ...]
+
+
+def coefficient_names(basis: Sequence[Nonlinearity]) -> tuple[str, ...]:
+    """All basis-column names, in extended-input order."""
+    return tuple(n for nl in basis for n in nl.coefficient_names)
+
+
+def location_matrix(basis: Sequence[Nonlinearity], output_names: Sequence[str]) -> np.ndarray:
+    """Location vectors of every basis column, shape ``(p, s)`` (columns repeat for trilinear)."""
+    cols = []
+    for nl in basis:
+        vec = nl.location_vector(output_names)
+        cols.extend([vec] * len(nl.coefficient_names))
+    return np.stack(cols, axis=1) if cols else np.zeros((len(output_names), 0))
+
+
+def evaluate_basis(basis: Sequence[Nonlinearity], q: np.ndarray, q_dot: np.ndarray | None,
+                   output_names: Sequence[str]) -> np.ndarray:
+    """Evaluate every basis column on displacements (and velocities).
+
+    Parameters
+    ----------
+    basis : sequence of Nonlinearity
+    q : ndarray, shape (n_samples, p)
+        Displacements of the outputs (m).
+    q_dot : ndarray, shape (n_samples, p), optional
+        Velocities (m/s), needed by velocity-dependent elements.
+    output_names : sequence of str, length p
+
+    Returns
+    -------
+    h : ndarray, shape (n_samples, s)
+    """
+    q = np.asarray(q, float)
+    if not basis:
+        return np.zeros((q.shape[0], 0))
+    cols = []
+    for nl in basis:
+        L = nl.location_vector(output_names)
+        dv = q_dot @ L if (nl.needs_velocity and q_dot is not None) else None
+        cols.append(nl.evaluate(q @ L, dv))
+    return np.concatenate(cols, axis=1)
+
+
+def nonlinearity_from_dict(d: Mapping) -> Nonlinearity:
+    """Build a :class:`Nonlinearity` from a plain mapping (already validated)."""
+    return Nonlinearity(**dict(d))

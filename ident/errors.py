@@ -1,0 +1,45 @@
+"""Exceptions of the ``ident`` package.
+
+Every error a user can cause while identifying (wrong array shape, unknown channel, a
+configuration that cannot give a nonlinear coefficient...) is an :class:`IdentError`, which
+is both a :class:`fnsi_lab.errors.FnsiLabError` (the CLI prints it on one line, exit 2) and
+a :class:`ValueError` (pattern of python-can's ``exceptions.py``).
+"""
+
+from __future__ import annotations
+
+from fnsi_lab.errors import ConfigError, DataFileError, FnsiLabError
+
+
+class IdentError(FnsiLabError, ValueError):
+    """Identification cannot proceed with these data or options."""
+
+
+class ChannelError(IdentError, KeyError):
+    """A channel name (output, input, driving point, basis-function channel) is unknown."""
+
+    def __str__(self) -> str:  # KeyError would quote the message
+        return str(self.args[0]) if self.args else ""
+
+
+class NotIdentifiableError(IdentError):
+    """The requested quantity is not available from this measurement set-up.
+
+    Example: the nonlinear coefficient needs the driving-point output (spec §2.3).
+    """
+
+
+class IdentConfigError(ConfigError, IdentError):
+    """The ident YAML configuration is wrong (file, field and fix in the message)."""
+
+
+class IdentDataError(DataFileError, IdentError):
+    """An ident INPUT file is missing, unreadable or has the wrong content."""
+
+
+class IdentWarning(UserWarning):
+    """Something is suspicious but identification can continue (e.g. not in steady state)."""
+
+
+__all__ = ["IdentError", "ChannelError", "NotIdentifiableError", "IdentConfigError",
+           "IdentDataError", "IdentWarning"]
