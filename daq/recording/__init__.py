@@ -1,0 +1,26 @@
+"""MCAP recording of sample blocks: writer, reader, recovery and ``info``.
+
+One file per experiment: protobuf sample blocks (schema built at run time), JSON events,
+metadata records ``fnsi_lab.<key>``, attachments (``experiment.yaml``...), zstd chunks
+flushed about every second. The format is described in ``docs/recording-format.md``;
+names live in :mod:`daq.recording.topics`.
+
+- :class:`Recorder` writes (one thread), :func:`open_recording` / :func:`read_periodic`
+  read, :func:`recover` salvages an unfinished file, :func:`recording_info` /
+  :func:`format_info` describe one.
+"""
+
+from daq.recording.errors import (MissingChannelsError, NotMcapError, RecorderClosedError,
+                                  RecordingError, RecordingNotFoundError,
+                                  UnfinishedRecordingError, WrongSchemaError)
+from daq.recording.info import format_info, recording_info
+from daq.recording.reader import PeriodicRecord, Recording, open_recording, read_periodic
+from daq.recording.recover import RecoverReport, recover
+from daq.recording.writer import Recorder, experiment_attachment
+
+__all__ = [
+    "Recorder", "experiment_attachment", "Recording", "PeriodicRecord", "open_recording",
+    "read_periodic", "RecoverReport", "recover", "recording_info", "format_info",
+    "RecordingError", "RecordingNotFoundError", "NotMcapError", "UnfinishedRecordingError",
+    "WrongSchemaError", "MissingChannelsError", "RecorderClosedError",
+]
