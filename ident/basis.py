@@ -158,8 +158,8 @@ class Nonlinearity:
             if self.signed:
                 h = np.abs(x) ** (self.exponent - 1.0) * x
             else:
-                h = np.sign(x) ** round(self.exponent) * np.abs(x) ** self.exponent \
-                    if float(self.exponent).is_integer() else np.abs(x) ** self.exponent
+                e = float(self.exponent)
+                h = x ** int(e) if e.is_integer() else np.abs(x) ** e
             return h[:, None]
         if self.kind == "trilinear":
             gn, gp = self.clearances

@@ -1,0 +1,969 @@
+"""The one robust pipeline: order sweep -> IC -> stabilisation -> MDI -> reduction (spec §3-8).
+
+:func:`identify_auto` turns frequency-domain data into a model without a human reading the
+stabilisation diagram:
+
+1. one QR and one SVD (:func:`ident.fnsi.subspace_decomposition`), then every order of the
+   sweep (:func:`ident.fnsi.model_at_order`; spec §1.7);
+2. information criterion ``I(n) = V(n)(1 + n/F)`` over the band chosen by
+   :func:`ident.order_selection.ic_line_mask` (spec §3, §8.3); unstable orders excluded;
+3. stabilisation classes of every in-band pole against the previous order (spec §4);
+4. modal dominancy index of every mode of the model at the reduction order (the IC order by
+   default, or ``reduce_at``), restricted to the band of interest (spec §5, §8.5);
+5. automatic threshold at the largest gap of ``log10 MDI`` among the candidate modes
+   (stable, in band, not at Nyquist), split modes grouped, ``top_n`` / manual overrides
+   (spec §7); modes above the threshold but not stabilised in frequency are vetoed;
+6. reduction to the physical modes by ordered real Schur form and B, D re-estimation
+   (spec §6); poles and nonlinear coefficients of the reduced model;
+7. a confidence statement combining the separation ratio with the agreement between the
+   MDI classification and stabilisation (spec §7.4, §8.5).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field, replace
+from typing import Any, Callable, Sequence
+
+import numpy as np
+import scipy.linalg as sla
+
+from fnsi_lab.progress import Progress
+from ident import mdi as mdi_mod
+from ident import order_selection as osel
+from ident import stabilisation as stab
+from ident.errors import IdentError
+
+__all__ = ["AutoOptions", "AutoResult", "identify_auto", "modal_ct_from_dt", "confidence_statement"]
+
+
+@dataclass(frozen=True)
+class AutoOptions:
+    """Options of the robust pipeline (all keyword, validated by :meth:`validate`).
+
+    Attributes
+    ----------
+    ic_band : {'auto', 'processed', 'excited'} or (float, float)
+        Lines of the model error V (spec §8.3); see :func:`ident.order_selection.ic_line_mask`.
+    criterion : {'seed', 'aic'}
+        Seed Eq. 8 or the AIC-style parameter count (option).
+    band_of_interest_hz : (float, float) or None
+        Band of the MDI and of the stabilisation diagram; default the excited band.
+    mdi_norm : {'h2', 'seed', 'h2_single', 'hinf', 'hinf_band'}
+        Norm that classifies (all are reported).
+    input_scaling : {'default', 'force', 'raw'}
+        Column weights of the modal input rows (spec §5.2).
+    output_scaling : {'rms', 'noise', 'none'}
+        Row weights of the modal output shapes (:func:`ident.mdi.output_weights`): ``rms``
+        counts every channel by its relative response, so a mode that dominates a few
+        low-amplitude channels (an instrument plate next to a wheel that moves 10x more)
+        is not drowned by the large channels. Not in the seed; ``none`` is the seed's
+        absolute sum.
+    require_stabilised : bool
+        Veto: a mode above the MDI threshold that is not stabilised in frequency against the
+        previous order (class ``new``) is dropped and reported (spec §8.5). The gap search
+        itself runs over every stable in-band mode.
+    min_physical : int
+        Search the largest gap below the ``min_physical`` largest candidates.
+    top_n : int or None
+        Keep exactly the ``top_n`` largest candidates (weak genuine modes; spec §7.5).
+    manual_threshold : float or None
+        Keep candidates with MDI above this value.
+    group_split_modes : bool
+        Group near-duplicate poles with cancelling residues (spec §7.5).
+    freq_tol, damping_tol, mac_tol : float
+        Stabilisation tolerances (spec §4).
+    out_of_band : {'drop', 'keep'}
+        ``drop`` (default, the seed's reading): the reduced model holds only the physical
+        in-band modes. ``keep`` also leaves every stable pole the MDI does not judge (real
+        poles, pairs outside the band of interest). Measured on the SmallSat (docs/robust.md):
+        ``keep`` let out-of-band poles absorb the basis-function columns (3 channels, order
+        55: c_NC2 -98.8 % instead of -0.23 %). Unstable and Nyquist poles are always removed.
+    sweep_bd : {'fast', 'weighted'}
+        B, D of the sweep's models when the data carry a noise covariance: ``fast`` uses the
+        unweighted modal-form least squares for every order (they only feed V(n); poles and
+        mode shapes come from A, C of the weighted SVD) and re-estimates the selected and MDI
+        models with the weighted routine (spec §1.4); ``weighted`` uses it for every order
+        (about 1-3 s per order with 39 outputs).
+    stab_lookback : int
+        Previous orders each pole is compared with (best class kept); 2 because the sweep
+        visits odd orders, which hold a real pole and are poor references for pairs.
+    d_zero : bool
+        ``D = 0`` in every least squares (displacement/velocity outputs).
+    weighted : bool
+        Use the noise covariance in the SVD and B, D least squares when available.
+    block_rows : int or None
+        ``i``; default from the core.
+    ambiguous_ratio, clear_ratio : float
+        Separation ratios below ``ambiguous_ratio`` are reported as ambiguous, above
+        ``clear_ratio`` as clear (spec §7.4: "below about 2, call it ambiguous").
+    fallback : {'stabilisation', 'none'}
+        Combine the MDI split with stabilisation (spec §7.5 relative threshold, §8.5): an
+        eligible mode below the gap is kept if it is fully stable and
+        ``MDI >= fallback_rel_floor * max MDI``; when the largest-gap ratio is below
+        ``clear_ratio`` any mode stabilised in frequency qualifies. Reason: when no spurious
+        pole lies in band the largest gap falls between genuine modes, and dropping a genuine
+        mode degrades the reduced model (measured on the lumped model: +8.9 % coefficient
+        error) whereas keeping a weak spurious one only forgoes an improvement.
+    fallback_rel_floor : float
+        Relative MDI floor of the fallback (spec §7.5 suggests 1e-3).
+    """
+
+    ic_band: Any = "auto"
+    criterion: str = "seed"
+    band_of_interest_hz: tuple | None = None
+    mdi_norm: str = "h2"
+    input_scaling: str = "default"
+    output_scaling: str = "rms"
+    require_stabilised: bool = True
+    min_physical: int = 1
+    top_n: int | None = None
+    manual_threshold: float | None = None
+    group_split_modes: bool = True
+    freq_tol: float = 0.01
+    damping_tol: float = 0.05
+    mac_tol: float = 0.98
+    stab_lookback: int = 2
+    sweep_bd: str = "fast"
+    out_of_band: str = "drop"
+    d_zero: bool = False
+    weighted: bool = True
+    block_rows: int | None = None
+    ambiguous_ratio: float = 2.0
+    clear_ratio: float = 10.0
+    fallback: str = "stabilisation"
+    fallback_rel_floor: float = 1e-3
+
+    def validate(self) -> "AutoOptions":
+        """Raise :class:`IdentError` naming the bad option and the allowed values."""
+        if self.criterion not in osel.CRITERIA:
+            raise IdentError(f"criterion={self.criterion!r} is not one of {osel.CRITERIA}")
+        if self.mdi_norm not in mdi_mod.MDI_NORMS:
+            raise IdentError(f"mdi_norm={self.mdi_norm!r} is not one of {mdi_mod.MDI_NORMS}")
+        if self.output_scaling not in ("rms", "noise", "none"):
+            raise IdentError(f"output_scaling={self.output_scaling!r} is not one of "
+                             "('rms', 'noise', 'none')")
+        if self.input_scaling not in mdi_mod.INPUT_SCALINGS:
+            raise IdentError(f"input_scaling={self.input_scaling!r} is not one of "
+                             f"{mdi_mod.INPUT_SCALINGS}")
+        if isinstance(self.ic_band, str) and self.ic_band not in osel.IC_BANDS:
+            raise IdentError(f"ic_band={self.ic_band!r} is not one of {osel.IC_BANDS} or (f1, f2)")
+        if self.top_n is not None and self.manual_threshold is not None:
+            raise IdentError("give top_n or manual_threshold, not both")
+        if self.sweep_bd not in ("fast", "weighted"):
+            raise IdentError(f"sweep_bd={self.sweep_bd!r} is not one of ('fast', 'weighted')")
+        if self.out_of_band not in ("keep", "drop"):
+            raise IdentError(f"out_of_band={self.out_of_band!r} is not one of ('keep', 'drop')")
+        if self.fallback not in ("stabilisation", "none"):
+            raise IdentError(f"fallback={self.fallback!r} is not one of ('stabilisation', 'none')")
+        if self.min_physical < 1:
+            raise IdentError(f"min_physical must be >= 1, got {self.min_physical}")
+        return self
+
+    @classmethod
+    def from_dict(cls, d: dict | None) -> "AutoOptions":
+        """From a plain mapping (YAML ``auto:`` section); unknown keys are rejected."""
+        d = dict(d or {})
+        names = set(cls.__dataclass_fields__)
+        bad = sorted(set(d) - names)
+        if bad:
+            raise IdentError(f"unknown auto option(s) {bad}; allowed: {sorted(names)}")
+        for k in ("band_of_interest_hz",):
+            if d.get(k) is not None:
+                d[k] = tuple(float(x) for x in d[k])
+        if isinstance(d.get("ic_band"), (list, tuple)):
+            d["ic_band"] = tuple(float(x) for x in d["ic_band"])
+        return cls(**d).validate()
+
+
+# --------------------------------------------------------------------------------------
+def modal_ct_from_dt(a_d, b_d, c_d, sample_rate_hz: float):
+    """Continuous-time modal form from the DT model, pole by pole (spec §1.5).
+
+    Parameters
+    ----------
+    a_d : ndarray, shape (n, n)
+    b_d : ndarray, shape (n, m_e)
+    c_d : ndarray, shape (p, n)
+    sample_rate_hz : float
+
+    Returns
+    -------
+    mu : complex ndarray, shape (n,)
+        Eigenvalues of ``A_d``.
+    lam : complex ndarray, shape (n,)
+        ``fs log(mu)`` (rad/s).
+    c_hat : complex ndarray, shape (p, n)
+        ``C_d Phi``.
+    b_hat : complex ndarray, shape (n, m_e)
+        ``[lam_i / (mu_i - 1)] (Phi^-1 B_d)_i`` (the CT modal input rows).
+
+    Notes
+    -----
+    Exact ZOH inverse in modal coordinates: ``b_c,i = lam_i/(mu_i - 1) b_d,i``; the factor
+    tends to ``fs`` as ``mu -> 1``. Identical to diagonalising the CT model of
+    :func:`ident.fnsi.discrete_to_continuous`, without the logm round trip.
+    """
+    fs = float(sample_rate_hz)
+    mu, phi = np.linalg.eig(np.asarray(a_d))
+    lam = fs * np.log(mu.astype(complex))
+    bh = np.linalg.solve(phi, np.asarray(b_d, dtype=complex))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        fac = np.where(np.abs(mu - 1) > 1e-12, lam / (mu - 1), fs)
+    return mu, lam, np.asarray(c_d) @ phi, fac[:, None] * bh
+
+
+# --------------------------------------------------------------------------------------
+# Fast unweighted B, D for the order sweep (helper kept here, separate from the core)
+# --------------------------------------------------------------------------------------
+#: Eigenvector condition number above which the sweep falls back to the core's estimate_bd.
+_FAST_COND_LIMIT = 1e8
+
+
+def fast_estimate_bd(a_d, c_d, data, *, d_zero: bool = False, refine: int = 2):
+    """Unweighted ``B``, ``D`` least squares in modal coordinates, BLAS-only (spec §1.4).
+
+    Same problem and result as :func:`ident.fnsi.estimate_bd` with ``weighted=False``
+    (the oracle in the tests), organised so that one order costs one
+    ``(F, m_e n)^H (F, m_e n)`` product.
+
+    Parameters
+    ----------
+    a_d : ndarray, shape (n, n)
+    c_d : ndarray, shape (p, n)
+    data : FrequencyData
+    d_zero : bool
+    refine : int
+        Steps of iterative refinement (residual in the original form).
+
+    Returns
+    -------
+    (b_d, d_d) : ndarrays, shapes (n, m_e), (p, m_e), physical basis units;
+        or None when ``A_d``'s eigenvectors are too ill-conditioned (caller falls back).
+
+    Notes
+    -----
+    ``Y_k = C_hat diag(w_k) B_hat E_k + D E_k``, ``w_k = 1/(z_k - mu)``, ``B_hat = Phi^-1 B``.
+    With ``U[k, (j, a)] = E_kj w_ka`` and ``G = C_hat^H C_hat``:
+    ``N_BB = (U^H U) .* G`` (blockwise), ``N_BD[(j,a),(l,i)] = conj(C_hat[i,a]) (U^H E)[(j,a),l]``,
+    ``N_DD = (E^H E) (x) I_p``; the real unknowns follow from ``vec B_hat = (I (x) Phi^-1) vec B``
+    and real parts (the lines are the positive-frequency half of a real problem).
+    """
+    a_d = np.asarray(a_d, float)
+    c_d = np.asarray(c_d, float)
+    n = a_d.shape[0]
+    p, me = c_d.shape[0], data.E.shape[1]
+    mu, phi = np.linalg.eig(a_d)
+    if not np.isfinite(np.linalg.cond(phi)) or np.linalg.cond(phi) > _FAST_COND_LIMIT:
+        return None
+    pinv = np.linalg.inv(phi)
+    ch = c_d @ phi
+    E, Y, z = data.E, data.Y, data.z
+    F = z.size
+    w = 1.0 / (z[:, None] - mu[None, :])                        # (F, n)
+    U = (E[:, :, None] * w[:, None, :]).reshape(F, me * n)      # (F, (j,a))
+    G = ch.conj().T @ ch                                         # (n, n)
+    Nbb = (U.conj().T @ U).reshape(me, n, me, n) * G[None, :, None, :]
+    # to real B coordinates: block (j,l) -> Pinv^H Nbb_jl Pinv
+    Nbb = np.einsum("ia,jalb,bk->jilk", pinv.conj().T, Nbb, pinv, optimize=True)
+    nb = me * n
+    if d_zero:
+        Nr = Nbb.reshape(nb, nb).real
+    else:
+        UE = (U.conj().T @ E).reshape(me, n, me)                 # [(j,a), l]
+        Nbd = UE[:, :, :, None] * ch.conj().T[None, :, None, :]  # (j, a, l, i)
+        Nbd = np.einsum("ia,jalm->jilm", pinv.conj().T, Nbd, optimize=True)
+        Ndd = np.einsum("jl,im->jilm", E.conj().T @ E, np.eye(p))
+        nd = me * p
+        Nc = np.zeros((nb + nd, nb + nd), complex)
+        Nc[:nb, :nb] = Nbb.reshape(nb, nb)
+        Nc[:nb, nb:] = Nbd.reshape(nb, nd)
+        Nc[nb:, :nb] = Nbd.reshape(nb, nd).conj().T
+        Nc[nb:, nb:] = Ndd.reshape(nd, nd)
+        Nr = Nc.real
+    Nr = 0.5 * (Nr + Nr.T)
+
+    def rhs(R):
+        Z = R @ ch.conj()                                        # (F, n)
+        rb = (E.conj().T @ (w.conj() * Z))                       # (me, n) modal
+        rb = (rb @ pinv.conj()).reshape(-1)                      # to real coordinates
+        if d_zero:
+            return rb.real
+        rd = (E.conj().T @ R).reshape(-1)                        # (me, p)
+        return np.concatenate([rb.real, rd.real])
+
+    def predict(theta):
+        B = theta[:nb].reshape(me, n).T
+        out = ((E @ B.T @ pinv.T) * w) @ ch.T
+        if not d_zero:
+            D = theta[nb:].reshape(me, p).T
+            out = out + E @ D.T
+        return out
+
+    d = np.sqrt(np.abs(np.diag(Nr)))
+    d[d == 0] = 1.0
+    Ns = Nr / np.outer(d, d)
+    try:
+        cho = sla.cho_factor(Ns, check_finite=False)
+        solve = lambda r: sla.cho_solve(cho, r / d, check_finite=False) / d  # noqa: E731
+    except np.linalg.LinAlgError:
+        lu = sla.lu_factor(Ns, check_finite=False)
+        solve = lambda r: sla.lu_solve(lu, r / d, check_finite=False) / d  # noqa: E731
+    theta = solve(rhs(Y))
+    for _ in range(refine):
+        theta = theta + solve(rhs(Y - predict(theta)))
+    b = theta[:nb].reshape(me, n).T * data.input_scale[None, :]
+    dd = (np.zeros((p, me)) if d_zero else theta[nb:].reshape(me, p).T) * data.input_scale[None, :]
+    return b, dd
+
+
+def _model_at_order_fast(decomp, data, order, *, d_zero=False, weighted_bd=True):
+    """:func:`ident.fnsi.model_at_order` with :func:`fast_estimate_bd` for B, D.
+
+    ``A`` and ``C`` always come from ``decomp`` (weighted SVD if it was). ``B``, ``D`` use the
+    fast unweighted routine unless the decomposition is weighted and ``weighted_bd``.
+    """
+    from ident import fnsi
+    if decomp.weighted and weighted_bd:
+        return fnsi.model_at_order(decomp, data, order, d_zero=d_zero)
+    n = int(order)
+    if not 1 <= n <= decomp.max_order:
+        raise IdentError(f"order {n} is outside 1..{decomp.max_order} (max order of this "
+                         "decomposition)")
+    p = decomp.n_outputs
+    G = decomp.observability[:, :n]
+    c_d = G[:p].copy()
+    a_d = np.linalg.lstsq(G[:-p], G[p:], rcond=None)[0]
+    bd = fast_estimate_bd(a_d, c_d, data, d_zero=d_zero)
+    if bd is None:
+        b_d, d_d = fnsi.estimate_bd(a_d, c_d, data, d_zero=d_zero, weighted=False)
+    else:
+        b_d, d_d = bd
+    return fnsi.make_model(a_d, b_d, c_d, d_d, sample_rate_hz=data.sample_rate_hz,
+                           n_inputs=data.n_inputs, input_names=data.extended_input_names,
+                           output_names=data.output_names)
+
+
+def _fast_error_and_poles(model, data, mask):
+    """V(n) over ``mask`` and the modes of one model (modal form: O(F n (p + m_e)))."""
+    mu, phi = np.linalg.eig(model.a_d)
+    ch = model.c_d @ phi
+    bh = np.linalg.solve(phi, model.b_d.astype(complex))
+    Ephys = data.E_physical[mask]
+    z = data.z[mask]
+    X = (bh @ Ephys.T).T / (z[:, None] - mu[None, :])             # (F, n)
+    Yh = X @ ch.T + Ephys @ model.d_d.T
+    v = osel.relative_model_error(data.Y[mask], Yh)
+    return v
+
+
+@dataclass(frozen=True)
+class AutoResult:
+    """Everything the robust pipeline decided, with the evidence (JSON via :meth:`to_json`).
+
+    Attributes
+    ----------
+    information_criterion : ident.order_selection.InformationCriterion
+    selected_order : int
+        ``argmin I`` over the stable orders.
+    stabilisation : ident.stabilisation.StabilisationDiagram
+    mdi_order : int
+        Order at which MDI and reduction were applied (``reduce_at`` or ``selected_order``).
+    modal_dominancy : ident.mdi.ModalDominancy
+        Every mode of the model at ``mdi_order``.
+    candidates : bool ndarray
+        Modes eligible for the gap search (stable, in band, not at Nyquist).
+    physical : bool ndarray
+        Final classification per mode.
+    threshold : ident.mdi.Threshold
+    separation_ratio : float
+    confidence : dict
+        ``{'level': 'clear'|'moderate'|'ambiguous', 'statement': str, ...}``.
+    model : ident.fnsi.StateSpaceModel
+        The model at ``selected_order``.
+    full_model : ident.fnsi.StateSpaceModel
+        The model at ``mdi_order`` (before reduction).
+    reduced : ident.fnsi.StateSpaceModel or None
+        The reduced model (None if nothing was removed).
+    coefficients : dict
+        ``{'selected': ..., 'full': ..., 'reduced': ...}`` summaries from the coefficient
+        callback (empty without one).
+    options : AutoOptions
+    groups : tuple of tuple of int
+        Mode groups used by the threshold (split modes share one group).
+    stab_class_at_mdi_order : tuple of str
+        Stabilisation class of each MDI mode at ``mdi_order`` (``'none'`` if out of band).
+    timings_s : dict
+        Seconds per stage.
+    models : dict int -> StateSpaceModel
+        Every model of the sweep (not serialised).
+    """
+
+    information_criterion: Any
+    selected_order: int
+    stabilisation: Any
+    mdi_order: int
+    modal_dominancy: Any
+    candidates: np.ndarray
+    physical: np.ndarray
+    threshold: Any
+    separation_ratio: float
+    confidence: dict
+    model: Any
+    full_model: Any
+    reduced: Any
+    coefficients: dict
+    options: AutoOptions
+    groups: tuple = ()
+    stab_class_at_mdi_order: tuple = ()
+    timings_s: dict = field(default_factory=dict)
+    models: dict = field(default_factory=dict, repr=False)
+
+    def mdi_table(self) -> list[dict]:
+        """``[{frequency_hz, damping_ratio, mdi_h2, mdi_seed, mdi_hinf, mdi_hinf_band, in_band,
+        stable, stabilisation, candidate, physical}]`` sorted by frequency."""
+        md = self.modal_dominancy
+        rows = []
+        for k in np.argsort(md.frequency_hz):
+            rows.append({
+                "frequency_hz": float(md.frequency_hz[k]),
+                "damping_ratio": float(md.damping_ratio[k]),
+                "mdi_h2": float(md.values["h2"][k]),
+                "mdi_seed": float(md.values["seed"][k]),
+                "mdi_hinf": float(md.values["hinf"][k]),
+                "mdi_hinf_band": float(md.values["hinf_band"][k]),
+                "in_band": bool(md.in_band[k]),
+                "stable": bool(md.stable[k]),
+                "stabilisation": (self.stab_class_at_mdi_order[k]
+                                  if self.stab_class_at_mdi_order else None),
+                "candidate": bool(self.candidates[k]),
+                "physical": bool(self.physical[k]),
+            })
+        return rows
+
+    def to_dict(self) -> dict:
+        """JSON-able dictionary of the decisions (models as poles, not matrices)."""
+        def fin(x):
+            x = float(x)
+            return x if np.isfinite(x) else None
+
+        def poles_of(model):
+            if model is None:
+                return None
+            m = model.poles.modes()
+            return [{"frequency_hz": float(f), "damping_ratio": float(z), "stable": bool(s)}
+                    for f, z, s in zip(m["frequency_hz"], m["damping_ratio"], m["stable"])]
+
+        red = None
+        if self.reduced is not None:
+            red = {"order": int(self.reduced.order), "poles": poles_of(self.reduced),
+                   "coefficients": self.coefficients.get("reduced")}
+        return {
+            "information_criterion": self.information_criterion.to_list(),
+            "ic_band": (self.information_criterion.band
+                        if isinstance(self.information_criterion.band, str)
+                        else list(self.information_criterion.band)),
+            "criterion": self.information_criterion.criterion,
+            "selected_order": int(self.selected_order),
+            "stabilisation": self.stabilisation.to_list(),
+            "mdi_order": int(self.mdi_order),
+            "mdi_norm": self.options.mdi_norm,
+            "mdi_band_hz": list(self.modal_dominancy.band_hz),
+            "mdi": self.mdi_table(),
+            "threshold": fin(self.threshold.threshold),
+            "threshold_method": self.threshold.method,
+            "separation_ratio": fin(self.separation_ratio),
+            "confidence": self.confidence,
+            "selected_model": {"order": int(self.model.order), "poles": poles_of(self.model),
+                               "coefficients": self.coefficients.get("selected")},
+            "full_model": {"order": int(self.full_model.order),
+                           "coefficients": self.coefficients.get("full")},
+            "reduced": red,
+            "timings_s": {k: float(v) for k, v in self.timings_s.items()},
+        }
+
+    def to_json(self, **kw) -> str:
+        """:meth:`to_dict` as JSON text."""
+        return json.dumps(self.to_dict(), **kw)
+
+
+def confidence_statement(separation_ratio: float, n_physical: int, disagreements: dict, *,
+                         ambiguous_ratio: float = 2.0, clear_ratio: float = 10.0) -> dict:
+    """How sure the physical/spurious split is (spec §7.4, §8.5).
+
+    Parameters
+    ----------
+    separation_ratio : float
+        Lowest physical MDI / highest spurious candidate MDI.
+    n_physical : int
+    disagreements : dict
+        ``{'kept_not_stabilised': [f_hz...], 'dropped_fully_stable': [f_hz...],
+        'excluded_out_of_band': int, 'excluded_unstable': int}``.
+
+    Returns
+    -------
+    dict
+        ``level`` (``'clear'``, ``'moderate'``, ``'ambiguous'``), ``statement`` (one paragraph
+        for a person), and the inputs.
+
+    Notes
+    -----
+    The level comes from the separation ratio (below ``ambiguous_ratio``: ambiguous; at or
+    above ``clear_ratio``: clear) and is lowered by one step if the MDI and the
+    stabilisation diagram disagree about any in-band mode.
+    """
+    r = separation_ratio
+    if not np.isfinite(r):
+        level = "clear" if n_physical > 0 and r == np.inf else "ambiguous"
+    elif r < ambiguous_ratio:
+        level = "ambiguous"
+    elif r < clear_ratio:
+        level = "moderate"
+    else:
+        level = "clear"
+    kept_ns = disagreements.get("kept_not_stabilised", [])
+    vetoed = disagreements.get("vetoed_not_stabilised", [])
+    rescued = disagreements.get("rescued_by_stabilisation", [])
+    drop_fs = disagreements.get("dropped_fully_stable", [])
+    steps = ["ambiguous", "moderate", "clear"]
+    if (kept_ns or drop_fs or vetoed or rescued) and level != "ambiguous":
+        level = steps[steps.index(level) - 1]
+    parts = [f"{n_physical} mode(s) classified physical; separation ratio "
+             + (f"{r:.3g}" if np.isfinite(r) else str(r))
+             + f" (ambiguous below {ambiguous_ratio:g}, clear from {clear_ratio:g})."]
+    if kept_ns:
+        parts.append("Kept although not stabilised in frequency: "
+                     + ", ".join(f"{f:.2f} Hz" for f in kept_ns) + ".")
+    if vetoed:
+        parts.append("Above the MDI threshold but dropped because not stabilised in frequency: "
+                     + ", ".join(f"{f:.2f} Hz" for f in vetoed) + ".")
+    if drop_fs:
+        parts.append("Dropped although fully stable (possibly genuine weak modes; consider "
+                     "top_n or a manual threshold): " + ", ".join(f"{f:.2f} Hz" for f in drop_fs) + ".")
+    if disagreements.get("fallback"):
+        parts.append("The MDI gap is not clear, so every stable in-band mode stabilised in "
+                     "frequency with an MDI above 1e-3 of the largest was kept as well.")
+    if rescued:
+        parts.append("Kept below the MDI threshold because stabilised across orders: "
+                     + ", ".join(f"{f:.2f} Hz" for f in rescued) + ".")
+    if level == "ambiguous":
+        parts.append("The split is ambiguous: check the stabilisation diagram or lower the order.")
+    return {"level": level, "statement": " ".join(parts), "separation_ratio":
+            float(r) if np.isfinite(r) else None, "n_physical": int(n_physical),
+            "kept_not_stabilised": [float(f) for f in kept_ns],
+            "dropped_fully_stable": [float(f) for f in drop_fs],
+            "vetoed_not_stabilised": [float(f) for f in vetoed],
+            "fallback_stabilisation": bool(disagreements.get("fallback", False)),
+            "rescued_by_stabilisation": [float(f) for f in rescued],
+            "excluded_out_of_band": int(disagreements.get("excluded_out_of_band", 0)),
+            "excluded_unstable": int(disagreements.get("excluded_unstable", 0))}
+
+
+def _restrict_diagram(diagram, band):
+    """The stabilisation diagram restricted to the poles inside ``band`` (Hz)."""
+    out = []
+    for o in diagram.orders:
+        sel = np.flatnonzero((o.frequency_hz >= band[0]) & (o.frequency_hz <= band[1]))
+        out.append(stab.StabilisationOrder(
+            order=o.order, frequency_hz=o.frequency_hz[sel], damping_ratio=o.damping_ratio[sel],
+            classes=tuple(o.classes[i] for i in sel), unstable=o.unstable[sel], mac=o.mac[sel],
+            index=o.index[sel]))
+    return replace(diagram, orders=tuple(out), band_hz=tuple(band))
+
+
+def _progress(progress, total):
+    if progress is None or progress is False:
+        return Progress(total, "orders", enabled=False)
+    if progress is True:
+        return Progress(total, "FNSI orders")
+    return progress
+
+
+def _band_of_interest(data, options):
+    if options.band_of_interest_hz is not None:
+        return tuple(float(x) for x in options.band_of_interest_hz)
+    exc = np.asarray(data.excited, bool)
+    if exc.any():
+        f = data.frequencies_hz[exc]
+        return (float(f.min()), float(f.max()))
+    return (float(data.frequencies_hz.min()), float(data.frequencies_hz.max()))
+
+
+def identify_auto(data, options: AutoOptions | dict | None = None, *,
+                  orders: Sequence[int] = range(2, 61), reduce_at: int | None = None,
+                  progress=None, coefficients: Callable | None = None) -> AutoResult:
+    """Identify a model and its physical modes without reading a stabilisation diagram.
+
+    Parameters
+    ----------
+    data : ident.fnsi.FrequencyData
+    options : AutoOptions or dict, optional
+    orders : sequence of int
+        Order sweep (default 2..60, as in the seed).
+    reduce_at : int, optional
+        Apply MDI and reduction at this order (e.g. a high order that holds every mode);
+        default the order chosen by the information criterion.
+    progress : bool or fnsi_lab.progress.Progress, optional
+        Progress bar over the orders (None/False: silent).
+    coefficients : callable, optional
+        ``coefficients(model) -> dict`` (JSON-able summary of the nonlinear coefficients,
+        e.g. built on :func:`ident.coefficients.nonlinear_coefficients`); called for the
+        selected, full and reduced models.
+
+    Returns
+    -------
+    AutoResult
+
+    Raises
+    ------
+    IdentError
+        Bad options, no stable order, or sizes the subspace step cannot meet.
+
+    Notes
+    -----
+    Spec §3 (IC with the exact frequency-domain shortcut), §4 (stabilisation), §5 (MDI),
+    §6 (reduction), §7 (threshold), §8.3 and §8.5 (band choices, confidence).
+    """
+    from ident import fnsi
+    from ident.reduction import reduce_model
+
+    if options is None:
+        options = AutoOptions()
+    elif isinstance(options, dict):
+        options = AutoOptions.from_dict(options)
+    options = options.validate()
+    orders = sorted({int(n) for n in orders})
+    if not orders or orders[0] < 1:
+        raise IdentError(f"orders must be positive integers, got {orders!r}")
+    sweep = sorted(set(orders) | ({int(reduce_at) + k for k in range(-2, 3)} - {0, -1}
+                                   if reduce_at is not None else set()))
+    t0 = time.perf_counter()
+    timings: dict[str, float] = {}
+
+    decomp = fnsi.subspace_decomposition(data, max_order=max(sweep), block_rows=options.block_rows,
+                                         weighted=options.weighted)
+    timings["subspace"] = time.perf_counter() - t0
+
+    ic_mask, ic_band = osel.ic_line_mask(data.frequencies_hz, data.excited, data.n_outputs,
+                                         options.ic_band)
+    boi = _band_of_interest(data, options)
+    bar = _progress(progress, len(sweep))
+    models: dict[int, Any] = {}
+    v = {}
+    stable = {}
+    t1 = time.perf_counter()
+    for n in sweep:
+        model = _model_at_order_fast(decomp, data, n, d_zero=options.d_zero,
+                                     weighted_bd=options.sweep_bd == "weighted")
+        models[n] = model
+        stable[n] = bool(model.stable)
+        if n in orders:
+            v[n] = _fast_error_and_poles(model, data, ic_mask)
+        bar.update(1, note=f"n={n}")
+    timings["sweep"] = time.perf_counter() - t1
+
+    t2 = time.perf_counter()
+    ic = osel.InformationCriterion.from_errors(
+        orders, [v[n] for n in orders], [stable[n] for n in orders], int(ic_mask.sum()),
+        band=ic_band, criterion=options.criterion, n_outputs=data.n_outputs,
+        n_extended_inputs=data.n_extended_inputs, d_zero=options.d_zero)
+    n_sel = ic.selected_order
+
+    # stabilisation over the sweep, modes of each order (one per pair, not at Nyquist)
+    fl, zl, sl = [], [], []
+    for n in sweep:
+        p = models[n].poles
+        idx = np.flatnonzero(p.is_mode)
+        fl.append(p.natural_frequency_hz[idx])
+        zl.append(p.damping_ratio[idx])
+        sl.append(p.mode_shapes[:, idx])
+    diagram = stab.classify_stabilisation(sweep, fl, zl, sl, band_hz=(0.0, np.inf),
+                                          freq_tol=options.freq_tol,
+                                          damping_tol=options.damping_tol,
+                                          mac_tol=options.mac_tol,
+                                          lookback=options.stab_lookback)
+    diagram_boi = _restrict_diagram(diagram, boi)
+    timings["ic_stabilisation"] = time.perf_counter() - t2
+
+    # MDI at the reduction order
+    t3 = time.perf_counter()
+    n_mdi = int(reduce_at) if reduce_at is not None else n_sel
+    if decomp.weighted and options.sweep_bd == "fast":
+        # the weighted B, D least squares (spec §1.4) for the models that are reported
+        for n in {n_sel, n_mdi}:
+            models[n] = fnsi.model_at_order(decomp, data, n, d_zero=options.d_zero)
+    full = models[n_mdi]
+    mu, lam, ch, bh = modal_ct_from_dt(full.a_d, full.b_d, full.c_d, full.sample_rate_hz)
+    weights = mdi_mod.input_weights(data.E_physical, data.n_inputs, options.input_scaling)
+    oweights = mdi_mod.output_weights(data.Y, options.output_scaling, data.noise_cov)
+    md = mdi_mod.modal_dominancy(lam, ch, bh, boi, norm=options.mdi_norm, weights=weights,
+                                 nyquist_hz=full.sample_rate_hz / 2, out_weights=oweights)
+    # stabilisation class of each MDI mode: match by frequency to this order's entries
+    # class at n_mdi against the previous orders and, for poles that are 'new' there, against
+    # the next orders too (spec §4: "previous (or next) order"): a mode that first appears at
+    # n_mdi and persists above it is not vetoed
+    rank = {"none": -1, "new": 0, "frequency": 1, "damping": 2, "mode": 3, "stable": 4}
+    st_o = diagram.by_order(n_mdi)
+    nxt = [n for n in sweep if n > n_mdi][:options.stab_lookback]
+    st_f = None
+    if nxt:
+        seq = sorted(nxt, reverse=True) + [n_mdi]
+        rev = stab.classify_stabilisation(seq, [fl[sweep.index(n)] for n in seq],
+                                          [zl[sweep.index(n)] for n in seq],
+                                          [sl[sweep.index(n)] for n in seq],
+                                          freq_tol=options.freq_tol,
+                                          damping_tol=options.damping_tol,
+                                          mac_tol=options.mac_tol, lookback=len(nxt))
+        st_f = rev.by_order(n_mdi)
+
+    def class_of(st, f):
+        if st is None or not st.frequency_hz.size:
+            return "none"
+        k = int(np.argmin(np.abs(st.frequency_hz - f)))
+        return st.classes[k] if abs(st.frequency_hz[k] - f) <= 1e-6 * max(f, 1e-12) else "none"
+
+    cls = []
+    for f in md.frequency_hz:
+        cb, cf = class_of(st_o, f), class_of(st_f, f)
+        cls.append(cb if rank[cb] >= rank[cf] or cb == "none" else cf)
+    cls_arr = np.array(cls, object)
+    # eligible for the gap search: stable, in the band of interest, not at Nyquist (spec §7.1);
+    # stabilisation acts afterwards as a veto (spec §8.5), so spurious poles still populate
+    # the lower side of the gap and genuine modes are not split among themselves
+    cand = md.in_band & md.stable
+    veto = (cls_arr == "new") if options.require_stabilised else np.zeros(cand.size, bool)
+    values = md.values[options.mdi_norm]
+    groups: list[list[int]] = [[i] for i in range(values.size)]
+    unit_values = values.copy()
+    if options.group_split_modes:
+        groups, unit_values = mdi_mod.group_split_modes(md, lam, ch, bh, weights=weights,
+                                                        out_weights=oweights)
+        if options.mdi_norm != "h2":     # groups' joint value is an H2 value; keep the norm's
+            unit_values = np.array([values[g[0]] if len(g) == 1 else unit_values[i]
+                                    for i, g in enumerate(groups)])
+    unit_cand = np.array([all(cand[g]) for g in groups], bool)
+    thr = mdi_mod.largest_gap_threshold(unit_values, candidates=unit_cand,
+                                        min_physical=options.min_physical, top_n=options.top_n,
+                                        manual_threshold=options.manual_threshold)
+    physical = np.zeros(values.size, bool)
+    for g, ph in zip(groups, thr.physical):
+        physical[g] = ph
+    # not a clear gap: the MDI alone cannot separate (e.g. no spurious pole in band, so the
+    # gap falls between genuine modes); fall back on stabilisation + a relative floor
+    # Asymmetric costs: dropping a genuine mode degrades the reduced model, keeping a weak
+    # spurious one only misses an improvement. So a fully stable mode (frequency, damping
+    # and MACX) whose MDI is not negligible is kept even below the gap ("rescued"), and when
+    # the gap is not clear any mode stabilised in frequency is (spec §7.5, §8.5).
+    fallback = (options.fallback == "stabilisation" and thr.method == "largest_gap"
+                and not (thr.separation_ratio >= options.clear_ratio))
+    rescued = np.zeros(values.size, bool)
+    if options.fallback == "stabilisation" and thr.method == "largest_gap" and cand.any():
+        floor = options.fallback_rel_floor * float(np.max(values[cand]))
+        ok_cls = (cls_arr != "new") & (cls_arr != "none") if fallback else (cls_arr == "stable")
+        rescued = cand & ~physical & ok_cls & (values >= floor)
+        physical |= rescued
+    vetoed = physical & veto
+    physical &= ~veto
+    timings["mdi"] = time.perf_counter() - t3
+
+    # confidence
+    inb = md.in_band
+    disagree = {
+        "kept_not_stabilised": sorted(md.frequency_hz[physical & (cls_arr == "new")].tolist()),
+        "vetoed_not_stabilised": sorted(md.frequency_hz[vetoed].tolist()),
+        "rescued_by_stabilisation": sorted(md.frequency_hz[rescued & physical].tolist()),
+        "dropped_fully_stable": sorted(md.frequency_hz[~physical & inb & md.stable
+                                                       & (cls_arr == "stable")].tolist()),
+        "excluded_out_of_band": int(np.sum(~inb)),
+        "excluded_unstable": int(np.sum(inb & ~md.stable)),
+    }
+    disagree["fallback"] = bool(fallback)
+    kept_v, drop_v = values[physical & cand], values[~physical & cand]
+    final_ratio = (float(kept_v.min() / drop_v.max()) if kept_v.size and drop_v.size
+                   and drop_v.max() > 0 else float("inf") if kept_v.size else float("nan"))
+    conf = confidence_statement(thr.separation_ratio, int(physical.sum()), disagree,
+                                ambiguous_ratio=options.ambiguous_ratio,
+                                clear_ratio=options.clear_ratio)
+    conf["final_separation_ratio"] = final_ratio if np.isfinite(final_ratio) else None
+
+    # reduction
+    t4 = time.perf_counter()
+    reduced = None
+    # poles kept in the reduced model: the physical in-band modes and, with
+    # out_of_band='keep', every stable pole the MDI does not judge (real poles, pairs outside
+    # the band of interest: true
+    # modes above the band carry the in-band residual flexibility); unstable and Nyquist
+    # poles are always removed (spec §7.1)
+    nyq = np.abs(md.eigenvalues.imag) >= 0.999 * np.pi * full.sample_rate_hz
+    keep_modes = physical.copy()
+    if options.out_of_band == "keep":
+        keep_modes |= ~md.in_band & md.stable & ~nyq
+    if keep_modes.any() and not keep_modes.all():
+        keep_lam = np.concatenate([lam[list(md.members[i])] for i in np.flatnonzero(keep_modes)])
+        keep_mu = np.exp(keep_lam / full.sample_rate_hz)
+        dmu = np.asarray(full.poles.discrete_eigenvalues)
+        keep_mask = np.zeros(dmu.size, bool)
+        for val in keep_mu:
+            dist = np.abs(dmu - val)
+            dist[keep_mask] = np.inf
+            keep_mask[int(np.argmin(dist))] = True
+        reduced = reduce_model(full, data, keep_mask, d_zero=options.d_zero,
+                               weighted=options.weighted)
+    timings["reduction"] = time.perf_counter() - t4
+
+    coefs: dict = {}
+    if coefficients is not None:
+        t5 = time.perf_counter()
+        coefs["selected"] = coefficients(models[n_sel])
+        coefs["full"] = coefficients(full)
+        if reduced is not None:
+            coefs["reduced"] = coefficients(reduced)
+        timings["coefficients"] = time.perf_counter() - t5
+    timings["total"] = time.perf_counter() - t0
+
+    return AutoResult(information_criterion=ic, selected_order=n_sel, stabilisation=diagram_boi,
+                      mdi_order=n_mdi, modal_dominancy=md, candidates=cand, physical=physical,
+                      threshold=thr, separation_ratio=thr.separation_ratio, confidence=conf,
+                      model=models[n_sel], full_model=full, reduced=reduced, coefficients=coefs,
+                      options=options, groups=tuple(tuple(g) for g in groups),
+                      stab_class_at_mdi_order=tuple(cls), timings_s=timings, models=models)
+
+
+# --------------------------------------------------------------------------------------
+# Command line: hooks called by ident.cli (``fnsi-lab ident INPUT --config C --auto``)
+# --------------------------------------------------------------------------------------
+def _parse_auto_section(sec, key):
+    """``auto:`` section of the ident YAML -> :class:`AutoOptions` (registered in config)."""
+    from ident.errors import IdentConfigError
+    raw = sec.raw(key, None)
+    if raw is None:
+        return AutoOptions()
+    if not isinstance(raw, dict):
+        raise IdentConfigError("must be a mapping of robust-pipeline options", file=sec.file,
+                               field=key, fix="e.g. auto: {mdi_norm: h2, top_n: 11}")
+    try:
+        return AutoOptions.from_dict(raw)
+    except (IdentError, TypeError) as exc:
+        raise IdentConfigError(str(exc), file=sec.file, field=key,
+                               fix=f"allowed keys: {', '.join(AutoOptions.__dataclass_fields__)}"
+                               ) from None
+
+
+def _register_config_section():
+    try:
+        from ident import config as _cfg
+    except ImportError:  # pragma: no cover - config is part of the core
+        return
+    _cfg.EXTRA_SECTIONS.setdefault("auto", _parse_auto_section)
+
+
+_register_config_section()
+
+
+def parse_orders(text: str) -> range:
+    """``'2:60'`` -> ``range(2, 61)`` (inclusive); ``'2:60:2'`` with a step."""
+    parts = str(text).split(":")
+    try:
+        nums = [int(p) for p in parts]
+    except ValueError:
+        raise IdentError(f"--orders {text!r}: expected FIRST:LAST or FIRST:LAST:STEP") from None
+    if len(nums) not in (2, 3) or nums[0] < 1 or nums[1] < nums[0] or (len(nums) == 3 and nums[2] < 1):
+        raise IdentError(f"--orders {text!r}: expected 1 <= FIRST <= LAST (and STEP >= 1)")
+    return range(nums[0], nums[1] + 1, nums[2] if len(nums) == 3 else 1)
+
+
+def add_cli_arguments(parser) -> None:
+    """``--auto``, ``--orders``, ``--reduce-at`` (hook of :func:`ident.cli.add_ident_arguments`)."""
+    g = parser.add_argument_group("robust pipeline (spec §3-8, docs/robust.md)")
+    g.add_argument("--auto", action="store_true",
+                   help="choose the order (information criterion), classify poles (MDI + "
+                        "stabilisation) and remove the spurious ones (model reduction)")
+    g.add_argument("--orders", default="2:60", metavar="FIRST:LAST",
+                   help="order sweep of --auto (default 2:60)")
+    g.add_argument("--reduce-at", type=int, default=None, metavar="N",
+                   help="apply the MDI and the reduction at order N (default: the IC order)")
+
+
+def run_cli(args, session):
+    """Robust path of ``fnsi-lab ident`` (hook of :func:`ident.cli.run_ident`).
+
+    Returns None when ``--auto`` is not given (the core's ``--order`` path runs).
+    """
+    if not getattr(args, "auto", False):
+        return None
+    from ident import cli as core_cli
+    from ident.coefficients import nonlinear_coefficients, summarize_coefficients
+
+    t0 = time.perf_counter()
+    cfg = session.config
+    options = cfg.extra.get("auto") or AutoOptions()
+    options = replace(options, d_zero=session.d_zero, weighted=session.weighted,
+                      block_rows=args.block_rows or cfg.block_rows or options.block_rows)
+    orders = parse_orders(args.orders)
+
+    def coef(model):
+        if not cfg.nonlinearities:
+            return None
+        spectra = nonlinear_coefficients(model, session.data, cfg.nonlinearities,
+                                         driving_point=cfg.driving_points or None)
+        return [s.to_dict() for s in summarize_coefficients(spectra)]
+
+    progress = Progress(len(orders), "FNSI orders", enabled=not args.quiet and args.json_out != "-")
+    res = identify_auto(session.data, options, orders=orders, reduce_at=args.reduce_at,
+                        progress=progress, coefficients=coef)
+    session.timings_s["auto"] = time.perf_counter() - t0
+    out = {"input": str(session.input.path), "config": cfg.file,
+           "outputs": list(session.data.output_names), "band_hz": list(session.data.band_hz),
+           "n_lines": session.data.n_lines, "warnings": list(session.warnings)}
+    out.update(res.to_dict())
+    out["timings_s"] = {**{k: float(v) for k, v in session.timings_s.items()}, **out["timings_s"]}
+    out = json.loads(json.dumps(out, default=_json_default), parse_constant=lambda c: None)
+    if not args.quiet and args.json_out != "-":
+        _print_auto_summary(res)
+    core_cli.write_json(_nan_to_none(out), args.json_out)
+    return 0
+
+
+def _json_default(o):
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    return str(o)
+
+
+def _nan_to_none(o):
+    if isinstance(o, float) and not np.isfinite(o):
+        return None
+    if isinstance(o, dict):
+        return {k: _nan_to_none(v) for k, v in o.items()}
+    if isinstance(o, list):
+        return [_nan_to_none(v) for v in o]
+    return o
+
+
+def _print_auto_summary(res: AutoResult, out=None) -> None:
+    import sys
+    out = out or sys.stdout
+    ic = res.information_criterion
+    print(f"information criterion ({ic.criterion}, band {ic.band}): order {res.selected_order}; "
+          f"{int(np.sum(~ic.stable))} of {ic.orders.size} orders unstable", file=out)
+    print(f"MDI at order {res.mdi_order} ({res.options.mdi_norm}, band "
+          f"{res.modal_dominancy.band_hz[0]:g}-{res.modal_dominancy.band_hz[1]:g} Hz): "
+          f"confidence {res.confidence['level']}", file=out)
+    print("  " + res.confidence["statement"], file=out)
+    for row in res.mdi_table():
+        if not row["in_band"]:
+            continue
+        print(f"  {row['frequency_hz']:9.3f} Hz  {100 * row['damping_ratio']:6.2f} %  "
+              f"MDI {row['mdi_h2']:9.3g}  {row['stabilisation'] or '':9s} "
+              f"{'physical' if row['physical'] else 'spurious'}", file=out)
+    if res.reduced is not None:
+        print(f"reduced model: order {res.reduced.order}", file=out)
+    for label, key in (("selected", "selected"), ("reduced", "reduced")):
+        for c in res.coefficients.get(key) or []:
+            err = (f"  error {c['error_percent']:+.3f} %" if c.get("error_percent") is not None
+                   else "")
+            print(f"  {label} {c['name']}: mean {c['mean_real']:.6g} (std {c['std_real']:.3g})"
+                  f"{err}", file=out)

@@ -1,0 +1,213 @@
+"""Model-order selection by the information criterion (spec §3, §8.3; seed §3, Eq. 6-8).
+
+Pure functions over arrays. The model error of order ``n`` is the steady-state output error,
+computed exactly in the frequency domain (spec §3 shortcut: ``Y_ss(k) = G_d(z_k) E(k)``,
+:func:`ident.fnsi.steady_state_output`), normalised by the output energy on the same lines:
+
+    V(n) = sum_{k in K_V} ||Y(k) - Y_ss(k)||^2 / sum_{k in K_V} ||Y(k)||^2        (Eq. 7)
+    I(n) = V(n) (1 + n / F)                                                    (Eq. 8)
+
+with ``F = |K_V|`` the number of lines where V is evaluated. Unstable models are excluded
+(``I = +inf``) and flagged. ``argmin I`` is the selected order.
+
+Options
+-------
+``criterion='seed'`` (default) is Eq. 8. ``criterion='aic'`` (not the seed's formula) counts
+parameters instead of states: ``I = V (1 + 2 n_theta / N_r)`` with
+``n_theta = n (m_e + p) + p m_e`` (``p m_e`` dropped when ``D = 0``) and ``N_r = 2 F p`` real
+residuals.
+
+``band='auto'`` (default) evaluates V over the excited lines when the outputs are few
+(``p <= FEW_OUTPUTS``) and over all processed lines otherwise: with few outputs, the extra
+states of high orders fit the harmonic content of the basis functions outside the excited
+band and V keeps falling there (spec §8.3). ``'processed'``, ``'excited'`` or an explicit
+``(f_min, f_max)`` in Hz are also accepted.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal, Sequence
+
+import numpy as np
+
+from ident.errors import IdentError
+
+Criterion = Literal["seed", "aic"]
+CRITERIA: tuple[str, ...] = ("seed", "aic")
+IcBand = Literal["auto", "processed", "excited"]
+IC_BANDS: tuple[str, ...] = ("auto", "processed", "excited")
+#: ``band='auto'`` uses the excited lines when there are at most this many outputs (spec §8.3:
+#: 3 outputs need the excited band, 39 do well on the processed band). Fixed a priori.
+FEW_OUTPUTS = 8
+
+__all__ = ["InformationCriterion", "relative_model_error", "information_criterion",
+           "parameter_count", "ic_line_mask", "select_order", "CRITERIA", "IC_BANDS",
+           "FEW_OUTPUTS"]
+
+
+def relative_model_error(Y, Y_hat, mask=None) -> float:
+    """``V = sum ||Y - Y_hat||^2 / sum ||Y||^2`` over the lines in ``mask`` (spec §3).
+
+    Parameters
+    ----------
+    Y, Y_hat : complex ndarray, shape (F, p)
+    mask : bool ndarray, shape (F,), optional
+
+    Returns
+    -------
+    float
+    """
+    Y = np.asarray(Y)
+    Y_hat = np.asarray(Y_hat)
+    if Y.shape != Y_hat.shape:
+        raise IdentError(f"Y {Y.shape} and Y_hat {Y_hat.shape} differ in shape")
+    if mask is not None:
+        Y = Y[mask]
+        Y_hat = Y_hat[mask]
+    den = float(np.sum(np.abs(Y) ** 2))
+    if den <= 0:
+        raise IdentError("the output has no energy on the lines of the information criterion")
+    return float(np.sum(np.abs(Y - Y_hat) ** 2) / den)
+
+
+def parameter_count(order: int, n_outputs: int, n_extended_inputs: int, *, d_zero: bool = False) -> int:
+    """``n_theta = n (m_e + p) + p m_e`` (``p m_e`` dropped if ``D = 0``), option ``aic``."""
+    return int(order * (n_extended_inputs + n_outputs) + (0 if d_zero else n_outputs * n_extended_inputs))
+
+
+def information_criterion(v, order, n_lines: int, *, criterion: Criterion = "seed",
+                          n_outputs: int | None = None, n_extended_inputs: int | None = None,
+                          d_zero: bool = False):
+    """``I(n)`` from ``V(n)`` (seed Eq. 8, or the AIC-style option).
+
+    Parameters
+    ----------
+    v : float or ndarray
+        Relative model error ``V(n)``.
+    order : int or int ndarray
+        ``n`` (same shape as ``v``).
+    n_lines : int
+        ``F``, lines in the error.
+    criterion : {'seed', 'aic'}
+    n_outputs, n_extended_inputs : int
+        Needed by ``'aic'``.
+    d_zero : bool
+        ``'aic'`` only: D not estimated.
+
+    Returns
+    -------
+    float or ndarray
+    """
+    if criterion not in CRITERIA:
+        raise IdentError(f"criterion={criterion!r} is not one of {', '.join(map(repr, CRITERIA))}")
+    v = np.asarray(v, float)
+    n = np.asarray(order, float)
+    if criterion == "seed":
+        return v * (1.0 + n / n_lines)
+    if n_outputs is None or n_extended_inputs is None:
+        raise IdentError("criterion='aic' needs n_outputs and n_extended_inputs")
+    ntheta = n * (n_extended_inputs + n_outputs) + (0 if d_zero else n_outputs * n_extended_inputs)
+    return v * (1.0 + 2.0 * ntheta / (2.0 * n_lines * n_outputs))
+
+
+def ic_line_mask(frequencies_hz, excited, n_outputs: int, band="auto"):
+    """Lines on which V is evaluated (spec §8.3).
+
+    Parameters
+    ----------
+    frequencies_hz : ndarray, shape (F,)
+    excited : bool ndarray, shape (F,)
+    n_outputs : int
+    band : {'auto', 'processed', 'excited'} or (float, float)
+
+    Returns
+    -------
+    mask : bool ndarray, shape (F,)
+    resolved : str or (float, float)
+        ``'processed'``, ``'excited'`` or the explicit band.
+    """
+    f = np.asarray(frequencies_hz, float)
+    exc = np.asarray(excited, bool)
+    if isinstance(band, str):
+        if band not in IC_BANDS:
+            raise IdentError(f"ic band={band!r} is not one of {', '.join(map(repr, IC_BANDS))} "
+                             "or a (f_min, f_max) pair in Hz")
+        if band == "auto":
+            band = "excited" if n_outputs <= FEW_OUTPUTS else "processed"
+        if band == "processed":
+            return np.ones(f.size, bool), "processed"
+        if not exc.any():
+            raise IdentError("no excited line: the information criterion cannot use the excited band")
+        lo, hi = f[exc].min(), f[exc].max()
+        return (f >= lo) & (f <= hi), "excited"
+    lo, hi = float(band[0]), float(band[1])
+    mask = (f >= lo) & (f <= hi)
+    if not mask.any():
+        raise IdentError(f"the information-criterion band {band!r} Hz holds no processed line")
+    return mask, (lo, hi)
+
+
+def select_order(orders: Sequence[int], ic, stable) -> int:
+    """``argmin I`` over the stable orders (unstable ones never selected).
+
+    Raises
+    ------
+    IdentError
+        If no order is stable.
+    """
+    ic = np.where(np.asarray(stable, bool), np.asarray(ic, float), np.inf)
+    if not np.any(np.isfinite(ic)):
+        raise IdentError("every model of the order sweep is unstable: no order can be selected "
+                         "(fix: lower the largest order or check the data)")
+    return int(np.asarray(orders)[int(np.argmin(ic))])
+
+
+@dataclass(frozen=True)
+class InformationCriterion:
+    """Information criterion over an order sweep.
+
+    Attributes
+    ----------
+    orders : int ndarray, shape (q,)
+    model_error : ndarray, shape (q,)
+        ``V(n)`` (relative), computed for unstable models too (for diagnosis).
+    value : ndarray, shape (q,)
+        ``I(n)``, ``+inf`` for unstable models.
+    stable : bool ndarray, shape (q,)
+    selected_order : int
+    n_lines : int
+        ``F``.
+    band : str or (float, float)
+        Lines used for V.
+    criterion : str
+    """
+
+    orders: np.ndarray
+    model_error: np.ndarray
+    value: np.ndarray
+    stable: np.ndarray
+    selected_order: int
+    n_lines: int
+    band: object
+    criterion: str
+
+    @classmethod
+    def from_errors(cls, orders, v, stable, n_lines, *, band="processed", criterion="seed",
+                    n_outputs=None, n_extended_inputs=None, d_zero=False) -> "InformationCriterion":
+        """Build from ``V(n)`` and stability flags (see :func:`information_criterion`)."""
+        orders = np.asarray(orders, int)
+        v = np.asarray(v, float)
+        stable = np.asarray(stable, bool)
+        val = information_criterion(v, orders, n_lines, criterion=criterion, n_outputs=n_outputs,
+                                    n_extended_inputs=n_extended_inputs, d_zero=d_zero)
+        val = np.where(stable & np.isfinite(val), val, np.inf)
+        return cls(orders=orders, model_error=v, value=val, stable=stable,
+                   selected_order=select_order(orders, val, stable), n_lines=int(n_lines),
+                   band=band, criterion=criterion)
+
+    def to_list(self) -> list[dict]:
+        """JSON-able ``[{order, value, model_error, stable}]`` (``value`` None if excluded)."""
+        return [{"order": int(n), "value": None if not np.isfinite(i) else float(i),
+                 "model_error": float(v), "stable": bool(s)}
+                for n, i, v, s in zip(self.orders, self.value, self.model_error, self.stable)]

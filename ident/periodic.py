@@ -1,0 +1,402 @@
+"""Periodic records -> frequency-domain data for FNSI (spec §1.2, §2.5).
+
+Steps (spec §1.2): drop transient periods; average the time signals over periods (per
+realization); evaluate the basis functions on the averaged response (after frequency-domain
+integration for velocity/acceleration outputs, §2.5); scale each basis column to the force
+RMS; DFT; keep the lines of the processed band (DC and Nyquist excluded, non-excited lines
+kept); per-line noise covariance of the averaged output spectrum when ``P >= 2``. Several
+realizations are handled by stacking their lines.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+from typing import Any, Literal, Sequence
+
+import numpy as np
+
+from ident.basis import Nonlinearity, coefficient_names, evaluate_basis
+from ident.errors import IdentError, IdentWarning
+
+OutputQuantity = Literal["displacement", "velocity", "acceleration"]
+OUTPUT_QUANTITIES: tuple[str, ...] = ("displacement", "velocity", "acceleration")
+
+
+@dataclass(frozen=True, eq=False)
+class FrequencyData:
+    """Frequency-domain data of one identification problem (spec §1.2).
+
+    Attributes
+    ----------
+    lines : int ndarray, shape (F,)
+        DFT bin ``k`` of each line (repeats when realizations are stacked).
+    frequencies_hz : ndarray, shape (F,)
+        ``k fs / N`` (Hz).
+    z : complex ndarray, shape (F,)
+        ``z_k = exp(j 2 pi k / N)``.
+    Y : complex ndarray, shape (F, p)
+        Averaged output spectrum (output units, numpy DFT divided by ``N``).
+    E : complex ndarray, shape (F, m_e)
+        Scaled extended-input spectrum ``[P; sigma_1 H_1; ...]`` (N).
+    input_scale : ndarray, shape (m_e,)
+        ``sigma``: 1 for the forces, ``sigma_a = rms(p)/rms(h_a)`` for basis columns, so the
+        physical spectrum is ``E / input_scale``.
+    noise_cov : complex ndarray, shape (F, p, p) or None
+        Covariance of ``Y`` (of the average) per line; None when ``P < 2``.
+    n_inputs : int
+        Number of forces ``m``.
+    sample_rate_hz : float
+    samples_per_period : int
+        ``N``.
+    output_names, input_names : tuple of str
+        Length ``p`` and ``m``.
+    excited : bool ndarray, shape (F,)
+        Lines where the force has energy.
+    basis_names : tuple of str
+        Names of the ``s = m_e - m`` basis columns.
+    output_quantity : {'displacement', 'velocity', 'acceleration'}
+    n_periods : int
+        Periods averaged (after dropping transients).
+    n_realizations : int
+    band_hz : (float, float)
+        Processed band.
+    steady_state_error : float
+        Largest relative period-to-period RMS difference of the kept output periods (0 if one
+        period).
+    time_base : {'zoh', 'bilinear'}
+        ``'zoh'``: ``z_k = exp(j 2 pi k / N)`` (FNSI, exact ZOH inverse to CT).
+        ``'bilinear'``: ``z_k = exp(j 2 atan(w_k T / 2))`` (spec §1.6; ``G_c(j w_k) = G_d(z_k)``
+        exactly, no sampling assumption).
+    bilinear_period_s : float or None
+        ``T`` of the bilinear map (s).
+    """
+
+    lines: np.ndarray
+    frequencies_hz: np.ndarray
+    z: np.ndarray
+    Y: np.ndarray
+    E: np.ndarray
+    input_scale: np.ndarray
+    noise_cov: np.ndarray | None
+    n_inputs: int
+    sample_rate_hz: float
+    samples_per_period: int
+    output_names: tuple[str, ...]
+    input_names: tuple[str, ...]
+    excited: np.ndarray
+    basis_names: tuple[str, ...] = ()
+    output_quantity: str = "displacement"
+    n_periods: int = 1
+    n_realizations: int = 1
+    band_hz: tuple[float, float] = (0.0, np.inf)
+    steady_state_error: float = 0.0
+    time_base: str = "zoh"
+    bilinear_period_s: float | None = None
+
+    @property
+    def n_lines(self) -> int:
+        """``F``."""
+        return int(self.lines.size)
+
+    @property
+    def n_outputs(self) -> int:
+        """``p``."""
+        return int(self.Y.shape[1])
+
+    @property
+    def n_extended_inputs(self) -> int:
+        """``m_e = m + s``."""
+        return int(self.E.shape[1])
+
+    @property
+    def extended_input_names(self) -> tuple[str, ...]:
+        """Forces then basis columns."""
+        return tuple(self.input_names) + tuple(self.basis_names)
+
+    @property
+    def E_physical(self) -> np.ndarray:
+        """Unscaled extended input ``E / input_scale`` (N, then basis units), shape (F, m_e)."""
+        return self.E / self.input_scale
+
+    def subset(self, mask: np.ndarray) -> "FrequencyData":
+        """The same data restricted to the lines where ``mask`` is True."""
+        mask = np.asarray(mask, bool)
+        from dataclasses import replace
+        return replace(self, lines=self.lines[mask], frequencies_hz=self.frequencies_hz[mask],
+                       z=self.z[mask], Y=self.Y[mask], E=self.E[mask],
+                       noise_cov=None if self.noise_cov is None else self.noise_cov[mask],
+                       excited=self.excited[mask])
+
+
+# ---------------------------------------------------------------------------- helpers
+def as_periodic(x: Any, samples_per_period: int | None, name: str) -> np.ndarray:
+    """Promote a signal to ``(n_realizations, n_periods, n_samples, n_channels)``.
+
+    ``(n_samples,)`` and ``(n_samples, n_channels)`` are cut into periods of
+    ``samples_per_period`` (default: one period); 3-D arrays are one realization.
+    """
+    arr = np.asarray(x, dtype=float)
+    if arr.ndim == 1:
+        arr = arr[:, None]
+    if arr.ndim == 2:
+        n_samples = arr.shape[0]
+        N = int(samples_per_period or n_samples)
+        if N <= 0 or n_samples % N:
+            raise IdentError(f"{name}: {n_samples} samples is not a whole number of periods of "
+                             f"{N} samples (fix samples_per_period)")
+        arr = arr.reshape(n_samples // N, N, arr.shape[1])
+    if arr.ndim == 3:
+        arr = arr[None]
+    if arr.ndim != 4:
+        raise IdentError(f"{name}: expected 1-4 dimensions (realizations, periods, samples, "
+                         f"channels), got shape {np.shape(x)}")
+    if samples_per_period and arr.shape[2] != samples_per_period:
+        raise IdentError(f"{name}: period length {arr.shape[2]} != samples_per_period "
+                         f"{samples_per_period}")
+    if not np.all(np.isfinite(arr)):
+        raise IdentError(f"{name}: contains NaN or infinite samples")
+    return arr
+
+
+def integrate_periodic(x: np.ndarray, sample_rate_hz: float, times: int,
+                       highpass_hz: float = 0.0, lowpass_hz: float | None = None) -> np.ndarray:
+    """Integrate (``times > 0``) or differentiate (``times < 0``) periodic signals exactly.
+
+    Frequency-domain operation on one period (spec §2.5): ``X(k) / (j w_k)**times``; DC and
+    the lines below ``highpass_hz`` (and above ``lowpass_hz``) are zeroed when integrating,
+    because ``1/w**2`` amplifies low-frequency noise; the Nyquist line is zeroed.
+
+    Parameters
+    ----------
+    x : ndarray, shape (N, n_channels)
+    sample_rate_hz : float
+    times : int
+        Number of integrations (negative: differentiations).
+    highpass_hz, lowpass_hz : float
+        Band kept when integrating (Hz).
+
+    Returns
+    -------
+    ndarray, shape (N, n_channels)
+    """
+    N = x.shape[0]
+    X = np.fft.rfft(x, axis=0)
+    f = np.fft.rfftfreq(N, 1.0 / sample_rate_hz)
+    jw = 2j * np.pi * f
+    fac = np.zeros_like(jw)
+    nz = f > 0
+    fac[nz] = jw[nz] ** (-times)
+    if times > 0:
+        fac[f < highpass_hz] = 0.0
+        if lowpass_hz is not None:
+            fac[f > lowpass_hz] = 0.0
+    elif times == 0:
+        fac[:] = 1.0
+    if N % 2 == 0 and times != 0:
+        fac[-1] = 0.0
+    return np.fft.irfft(X * fac[:, None], n=N, axis=0)
+
+
+# ---------------------------------------------------------------------------- main entry
+def prepare_frequency_data(record: Any = None, *, u: Any = None, y: Any = None,
+                           sample_rate_hz: float | None = None,
+                           samples_per_period: int | None = None,
+                           basis: Sequence[Nonlinearity] = (),
+                           band_hz: tuple[float, float] | None = None,
+                           transient_periods: int | None = None,
+                           output_quantity: OutputQuantity = "displacement",
+                           output_names: Sequence[str] | None = None,
+                           input_names: Sequence[str] | None = None,
+                           excited_lines: Sequence[int] | None = None,
+                           highpass_hz: float | None = None,
+                           excitation_threshold: float = 1e-4,
+                           steady_state_tolerance: float = 0.05,
+                           time_base: Literal["zoh", "bilinear"] = "zoh",
+                           bilinear_period_s: float | None = None) -> FrequencyData:
+    """Build :class:`FrequencyData` from a periodic record or from arrays (spec §1.2).
+
+    Parameters
+    ----------
+    record : object, optional
+        A ``daq.recording.reader.PeriodicRecord`` (or anything with ``u``, ``y``,
+        ``sample_rate_hz``, ``samples_per_period``, ``input_channels``, ``output_channels``,
+        ``transient_periods``, ``excited_lines``). Explicit keywords override its fields.
+    u : ndarray, shape (R, P, N, m), (P, N, m), (n_samples, m) or (n_samples,)
+        Forces (N).
+    y : ndarray, same leading shape, last axis p
+        Outputs (``output_quantity`` units: m, m/s or m/s^2).
+    sample_rate_hz : float
+    samples_per_period : int, optional
+        ``N``; needed to cut 1-D/2-D signals into periods.
+    basis : sequence of Nonlinearity
+    band_hz : (float, float)
+        Processed band ``[f_min, f_max]``; DC and Nyquist are always excluded.
+    transient_periods : int, optional
+        Periods dropped at the start of each realization (default: the record's, else 0).
+    output_quantity : {'displacement', 'velocity', 'acceleration'}
+    output_names, input_names : sequence of str, optional
+        Default ``y0, y1, ...`` and ``u0, ...``.
+    excited_lines : sequence of int, optional
+        DFT bins of the excitation; default from the force spectrum
+        (``|U(k)|^2 > excitation_threshold * max |U|^2``).
+    highpass_hz : float, optional
+        Integration high-pass for velocity/acceleration outputs (spec §2.5): lines below it
+        are zeroed before integrating. Default 0 (only DC removed): on noise-free simulated
+        accelerations of the 3-DOF cubic chain a high-pass at ``0.5 f_min`` biased ``c`` by
+        -1.5 % (it removes the low-frequency intermodulation motion the basis function
+        needs), against -0.03 % without. With noisy accelerations set it (e.g. ``0.5 f_min``).
+    excitation_threshold : float
+        Relative power threshold used to detect excited lines.
+    steady_state_tolerance : float
+        Warn (:class:`IdentWarning`) when the relative period-to-period RMS difference of the
+        kept outputs exceeds it.
+    time_base : {'zoh', 'bilinear'}
+        Frequency variable of the identification (spec §1.1, §1.6). ``'bilinear'`` suits
+        band-limited (anti-alias filtered) data, especially velocity and acceleration outputs,
+        whose ZOH reading is biased toward Nyquist.
+    bilinear_period_s : float, optional
+        ``T`` of the bilinear map; default ``2 / sqrt(w_min w_max)`` over the processed band,
+        which maps its geometric centre to ``theta = pi / 2``.
+
+    Returns
+    -------
+    FrequencyData
+
+    Raises
+    ------
+    IdentError
+        Wrong shapes, empty band, unknown channels, too few periods.
+    """
+    if record is not None:
+        u = record.u if u is None else u
+        y = record.y if y is None else y
+        sample_rate_hz = sample_rate_hz or getattr(record, "sample_rate_hz", None)
+        samples_per_period = samples_per_period or getattr(record, "samples_per_period", None)
+        if transient_periods is None:
+            transient_periods = getattr(record, "transient_periods", 0) or 0
+        if output_names is None and getattr(record, "output_channels", None) is not None:
+            output_names = [getattr(c, "name", c) for c in record.output_channels]
+        if input_names is None and getattr(record, "input_channels", None) is not None:
+            input_names = [getattr(c, "name", c) for c in record.input_channels]
+        if excited_lines is None:
+            excited_lines = getattr(record, "excited_lines", None)
+    if u is None or y is None:
+        raise IdentError("prepare_frequency_data needs a record or both u and y")
+    if not sample_rate_hz or not sample_rate_hz > 0:
+        raise IdentError("sample_rate_hz must be a positive number")
+    if band_hz is None:
+        raise IdentError("band_hz is required (processed band [f_min, f_max] in Hz)")
+    if output_quantity not in OUTPUT_QUANTITIES:
+        raise IdentError(f"output_quantity {output_quantity!r} is not one of {list(OUTPUT_QUANTITIES)}")
+    fs = float(sample_rate_hz)
+    U4 = as_periodic(u, samples_per_period, "u")
+    Y4 = as_periodic(y, samples_per_period, "y")
+    if U4.shape[:3] != Y4.shape[:3]:
+        raise IdentError(f"u and y do not match: u {U4.shape[:3]} vs y {Y4.shape[:3]} "
+                         "(realizations, periods, samples)")
+    R, P_tot, N, m = U4.shape
+    p = Y4.shape[3]
+    P_tr = int(transient_periods or 0)
+    if P_tr < 0 or P_tr >= P_tot:
+        raise IdentError(f"transient_periods={P_tr} leaves no period out of {P_tot}")
+    U4, Y4 = U4[:, P_tr:], Y4[:, P_tr:]
+    P = P_tot - P_tr
+    output_names = tuple(output_names) if output_names is not None else tuple(f"y{i}" for i in range(p))
+    input_names = tuple(input_names) if input_names is not None else tuple(f"u{i}" for i in range(m))
+    if len(output_names) != p:
+        raise IdentError(f"{len(output_names)} output names for {p} output channels")
+    if len(input_names) != m:
+        raise IdentError(f"{len(input_names)} input names for {m} input channels")
+    f_min, f_max = (float(b) for b in band_hz)
+    if not 0 <= f_min < f_max:
+        raise IdentError(f"band_hz must be [f_min, f_max] with 0 <= f_min < f_max, got {band_hz}")
+    k_all = np.arange(N // 2 + 1)
+    f_all = k_all * fs / N
+    sel = (f_all >= f_min) & (f_all <= f_max) & (k_all > 0)
+    if N % 2 == 0:
+        sel &= k_all < N // 2
+    K = k_all[sel]
+    if K.size == 0:
+        raise IdentError(f"no DFT line in band {band_hz} Hz (fs={fs:g} Hz, N={N})")
+
+    # steady-state check: period-to-period difference of the kept outputs
+    ss_err = 0.0
+    if P >= 2:
+        diff = np.sqrt(np.mean((Y4[:, 1:] - Y4[:, :-1]) ** 2, axis=(2, 3)))
+        ref = np.sqrt(np.mean(Y4 ** 2, axis=(1, 2, 3)))[:, None]
+        ss_err = float(np.max(diff / np.where(ref > 0, ref, 1.0)))
+        if ss_err > steady_state_tolerance:
+            warnings.warn(f"outputs may not be in periodic steady state: relative "
+                          f"period-to-period RMS difference {ss_err:.3g} > "
+                          f"{steady_state_tolerance:g} (drop more transient periods)",
+                          IdentWarning, stacklevel=2)
+
+    u_avg = U4.mean(axis=1)  # (R, N, m)
+    y_avg = Y4.mean(axis=1)  # (R, N, p)
+    # basis functions on the averaged response (spec §1.2 step 3; §2.5)
+    basis = tuple(basis)
+    s_names = coefficient_names(basis)
+    hp = 0.0 if highpass_hz is None else float(highpass_hz)
+    h_list = []
+    for r in range(R):
+        if not basis:
+            h_list.append(np.zeros((N, 0)))
+            continue
+        need_v = any(nl.needs_velocity for nl in basis)
+        if output_quantity == "displacement":
+            q = y_avg[r]
+            qd = integrate_periodic(q, fs, -1) if need_v else None
+        elif output_quantity == "velocity":
+            q = integrate_periodic(y_avg[r], fs, 1, hp)
+            qd = y_avg[r] - y_avg[r].mean(axis=0) if need_v else None
+        else:
+            q = integrate_periodic(y_avg[r], fs, 2, hp)
+            qd = integrate_periodic(y_avg[r], fs, 1, hp) if need_v else None
+        h_list.append(evaluate_basis(basis, q, qd, output_names))
+    h_avg = np.stack(h_list)  # (R, N, s)
+    rms_p = float(np.sqrt(np.mean(u_avg ** 2)))
+    if not rms_p > 0:
+        raise IdentError("the force signals are zero")
+    rms_h = np.sqrt(np.mean(h_avg ** 2, axis=(0, 1))) if basis else np.zeros(0)
+    if np.any(rms_h == 0):
+        dead = [n for n, v in zip(s_names, rms_h) if v == 0]
+        raise IdentError(f"basis functions {dead} are identically zero on these data "
+                         "(clearance larger than the motion, or wrong channels)")
+    sigma = np.concatenate([np.ones(m), rms_p / rms_h])
+    e_avg = np.concatenate([u_avg, h_avg * sigma[m:]], axis=2)
+
+    Ef = np.fft.rfft(e_avg, axis=1)[:, K] / N  # (R, F0, m_e)
+    Yf = np.fft.rfft(y_avg, axis=1)[:, K] / N  # (R, F0, p)
+    Uf = Ef[:, :, :m]
+    noise = None
+    if P >= 2:
+        Yq = np.fft.rfft(Y4, axis=2)[:, :, K] / N  # (R, P, F0, p)
+        dev = Yq - Yf[:, None]
+        noise = np.einsum("rqki,rqkj->rkij", dev, dev.conj()) / (P * (P - 1))
+        noise = noise.reshape(-1, p, p)
+    if excited_lines is not None and len(excited_lines):
+        exc0 = np.isin(K, np.asarray(excited_lines, int))
+        excited = np.tile(exc0, R)
+    else:
+        pw = np.sum(np.abs(Uf) ** 2, axis=2).reshape(-1)
+        excited = pw > excitation_threshold * pw.max()
+    lines = np.tile(K, R)
+    if time_base == "zoh":
+        z = np.exp(2j * np.pi * lines / N)
+        T_bl = None
+    elif time_base == "bilinear":
+        w_lines = 2 * np.pi * lines * fs / N
+        T_bl = (float(bilinear_period_s) if bilinear_period_s
+                else 2.0 / np.sqrt(w_lines.min() * w_lines.max()))
+        z = np.exp(2j * np.arctan(w_lines * T_bl / 2))
+    else:
+        raise IdentError(f"time_base {time_base!r} is not one of ['zoh', 'bilinear']")
+    return FrequencyData(
+        time_base=time_base, bilinear_period_s=T_bl,
+        lines=lines, frequencies_hz=lines * fs / N, z=z,
+        Y=Yf.reshape(-1, p), E=Ef.reshape(-1, m + len(s_names)), input_scale=sigma,
+        noise_cov=noise, n_inputs=m, sample_rate_hz=fs, samples_per_period=N,
+        output_names=output_names, input_names=input_names, excited=excited,
+        basis_names=s_names, output_quantity=output_quantity, n_periods=P, n_realizations=R,
+        band_hz=(f_min, f_max), steady_state_error=ss_err)
