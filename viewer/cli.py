@@ -1,0 +1,253 @@
+"""``fnsi-lab view FILE.rrd`` and the viewer options shared by ``live`` and ``replay``.
+
+Sinks (any combination): ``--rrd PATH`` saves, ``--spawn`` starts a native viewer,
+``--connect URL`` streams to a running viewer, ``--serve-web`` serves the web viewer. On a
+machine without a display ``--spawn`` falls back to saving (with a message), because a
+headless spawn warns and blocks at exit.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import rerun as rr
+
+from fnsi_lab.errors import DataFileError, FnsiLabError
+
+#: Default URL of a running viewer's gRPC proxy.
+DEFAULT_CONNECT_URL = "rerun+http://127.0.0.1:9876/proxy"
+#: Application id of every fnsi-lab recording in Rerun.
+APP_ID = "fnsi-lab"
+
+
+class ViewerError(FnsiLabError, RuntimeError):
+    """The viewer could not be started or reached."""
+
+
+def has_display() -> bool:
+    """True when a native window can be opened (X11/Wayland on Linux; always elsewhere)."""
+    if sys.platform.startswith("linux"):
+        return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+    return True
+
+
+def add_viewer_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add ``--rrd``, ``--spawn``, ``--connect``, ``--serve-web`` and ``--web-port``."""
+    g = parser.add_argument_group("viewer (Rerun)")
+    g.add_argument("--rrd", metavar="PATH", help="save everything logged to this .rrd file")
+    g.add_argument("--spawn", action="store_true",
+                   help="start a native Rerun viewer (falls back to --rrd without a display)")
+    g.add_argument("--connect", metavar="URL", nargs="?", const=DEFAULT_CONNECT_URL,
+                   help=f"stream to a running viewer (default URL {DEFAULT_CONNECT_URL})")
+    g.add_argument("--serve-web", action="store_true",
+                   help="serve the web viewer (open the printed http address in a browser)")
+    g.add_argument("--web-port", type=int, default=9090, metavar="PORT",
+                   help="HTTP port of --serve-web (default 9090; its gRPC port is 9876)")
+    g.add_argument("--grpc-port", type=int, default=9876, metavar="PORT",
+                   help="gRPC port of --serve-web (default 9876)")
+
+
+@dataclass
+class ViewerSinks:
+    """What :func:`open_stream` set up (for messages and clean shutdown)."""
+
+    rrd: str | None = None
+    spawned: bool = False
+    connected: str | None = None
+    web_url: str | None = None
+    grpc_url: str | None = None
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def any(self) -> bool:
+        """True when at least one sink receives data."""
+        return bool(self.rrd or self.spawned or self.connected or self.web_url)
+
+
+def open_stream(args: argparse.Namespace, blueprint: Any, *, recording_id: str | None = None,
+                default_rrd: str | None = None) -> tuple[rr.RecordingStream, ViewerSinks]:
+    """Create the recording stream and attach the sinks the options ask for.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        Parsed options of :func:`add_viewer_arguments`.
+    blueprint : rerun.blueprint.Blueprint
+        Sent as the default blueprint of every sink.
+    recording_id : str, optional
+        Rerun recording id (defaults to a random one).
+    default_rrd : str, optional
+        Where to save when no sink option was given, or ``--spawn`` is impossible and no
+        ``--rrd`` was given.
+
+    Returns
+    -------
+    (RecordingStream, ViewerSinks)
+    """
+    rec = rr.RecordingStream(APP_ID, recording_id=recording_id)
+    sinks = ViewerSinks()
+    rrd = getattr(args, "rrd", None)
+    spawn = bool(getattr(args, "spawn", False))
+    if not (rrd or spawn or getattr(args, "connect", None) or getattr(args, "serve_web", False)):
+        # a stream without a sink keeps everything in memory: save instead
+        rrd = default_rrd or "fnsi-lab.rrd"
+        sinks.notes.append(f"no viewer option given: saving to {rrd} (use --spawn, "
+                           "--connect or --serve-web to watch live)")
+    if spawn and not has_display():
+        rrd = rrd or default_rrd or "fnsi-lab.rrd"
+        sinks.notes.append(f"no display: not spawning a viewer; saving to {rrd} "
+                           f"(open it later with `rerun {rrd}` or `fnsi-lab view {rrd}`)")
+        spawn = False
+    sink_list: list[Any] = []
+    if rrd:
+        Path(rrd).parent.mkdir(parents=True, exist_ok=True)
+        sink_list.append(rr.FileSink(str(rrd)))
+        sinks.rrd = str(rrd)
+    if getattr(args, "connect", None):
+        sink_list.append(rr.GrpcSink(args.connect))
+        sinks.connected = args.connect
+    if spawn:
+        # spawn() starts the viewer and connects the stream to it; other sinks follow.
+        rec.spawn(connect=not sink_list, default_blueprint=blueprint)
+        if sink_list:
+            sink_list.append(rr.GrpcSink(DEFAULT_CONNECT_URL))
+        sinks.spawned = True
+    if getattr(args, "serve_web", False):
+        if sink_list:
+            sinks.notes.append("--serve-web streams only to the web viewer; "
+                               "other sinks are ignored")
+        grpc_url = rec.serve_grpc(grpc_port=args.grpc_port, default_blueprint=blueprint)
+        rr.serve_web_viewer(web_port=args.web_port, open_browser=False, connect_to=grpc_url)
+        sinks.grpc_url = grpc_url
+        sinks.web_url = f"http://127.0.0.1:{args.web_port}/?url={grpc_url}"
+        sinks.notes.append(f"web viewer at {sinks.web_url}")
+    elif sink_list:
+        rec.set_sinks(*sink_list, default_blueprint=blueprint)
+    return rec, sinks
+
+
+def close_stream(rec: rr.RecordingStream, sinks: ViewerSinks, *, wait_web_s: float = 0.0) -> None:
+    """Flush and disconnect; with a web viewer, keep serving ``wait_web_s`` seconds first."""
+    rec.flush()
+    if sinks.web_url and wait_web_s > 0:
+        time.sleep(wait_web_s)
+    rec.disconnect()
+
+
+# ---------------------------------------------------------------------------- rrd reading
+def rrd_entities(path: str | Path) -> dict[str, int]:
+    """Entity path -> number of rows (static and temporal) in an .rrd file.
+
+    Raises
+    ------
+    DataFileError
+        The file is missing or not an .rrd.
+    """
+    from rerun.chunk import RrdReader
+
+    path = Path(path)
+    if not path.is_file():
+        raise DataFileError(f"{path}: no such file")
+    try:
+        store = RrdReader(str(path)).stream().collect()
+    except Exception as exc:  # the reader raises plain exceptions on bad files
+        raise DataFileError(f"{path}: not a readable .rrd file ({exc})") from None
+    counts: dict[str, int] = {}
+    for chunk in store.stream():
+        counts[chunk.entity_path] = counts.get(chunk.entity_path, 0) + chunk.num_rows
+    return counts
+
+
+def rrd_text(path: str | Path, entity: str) -> str | None:
+    """The last TextDocument text logged at ``entity`` in an .rrd file, if any."""
+    from rerun.chunk import RrdReader
+
+    store = RrdReader(str(path)).stream().collect()
+    text = None
+    for chunk in store.stream():
+        if chunk.entity_path != entity:
+            continue
+        batch = chunk.to_record_batch()
+        if "TextDocument:text" in batch.schema.names:
+            values = batch.column("TextDocument:text").to_pylist()
+            if values:
+                last = values[-1]
+                text = last[0] if isinstance(last, list) else last
+    return text
+
+
+# ---------------------------------------------------------------------------- view command
+def _cmd_view(args: argparse.Namespace) -> int:
+    from viewer import paths
+
+    counts = rrd_entities(args.file)
+    print(f"{args.file}: {len(counts)} entities, {sum(counts.values())} rows")
+    for entity in sorted(counts):
+        if not entity.startswith("/__"):
+            print(f"  {entity:<48} {counts[entity]:>8} rows")
+    summary = rrd_text(args.file, paths.SUMMARY)
+    if summary:
+        print()
+        print(summary.rstrip())
+    if args.spawn:
+        exe = shutil.which("rerun")
+        if exe is None:
+            raise ViewerError("the `rerun` viewer executable is not on PATH",)
+        if not has_display():
+            print(f"no display: cannot open a window; copy {args.file} to a machine with one "
+                  f"and run `rerun {args.file}`, or use --serve-web", file=sys.stderr)
+            return 0
+        subprocess.Popen([exe, str(args.file)], start_new_session=True)
+        return 0
+    if args.connect or args.serve_web:
+        from rerun.chunk import RrdReader
+
+        from viewer.blueprint import blueprint
+
+        args.rrd = None
+        rec, sinks = open_stream(args, blueprint())
+        rr.send_chunks(RrdReader(str(args.file)).stream().collect(), recording=rec)
+        for note in sinks.notes:
+            print(note, file=sys.stderr)
+        if sinks.web_url:
+            print(f"serving {args.file} at {sinks.web_url} (Ctrl-C to stop)", file=sys.stderr)
+            try:
+                while True:
+                    time.sleep(3600)
+            except KeyboardInterrupt:
+                pass
+        close_stream(rec, sinks)
+    return 0
+
+
+def register(subparsers: Any) -> None:
+    """Add the ``view`` subcommand."""
+    p = subparsers.add_parser(
+        "view", help="list and open a saved Rerun recording (.rrd)",
+        description="Print what an .rrd file holds (entities, rows, the identification "
+                    "summary) and optionally open it in a Rerun viewer.",
+        epilog="examples:\n"
+               "  fnsi-lab view run.rrd                 # list entities and the summary\n"
+               "  fnsi-lab view run.rrd --spawn         # open it in the native viewer\n"
+               "  fnsi-lab view run.rrd --serve-web     # http://127.0.0.1:9090 in a browser\n",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("file", metavar="FILE.rrd", help="a recording saved with --rrd")
+    p.add_argument("--spawn", action="store_true", help="open it in the native Rerun viewer")
+    p.add_argument("--connect", metavar="URL", nargs="?", const=DEFAULT_CONNECT_URL,
+                   help="send it to a running viewer")
+    p.add_argument("--serve-web", action="store_true", help="serve it to a web browser")
+    p.add_argument("--web-port", type=int, default=9090, metavar="PORT")
+    p.add_argument("--grpc-port", type=int, default=9876, metavar="PORT")
+    p.set_defaults(handler=_cmd_view)
+
+
+__all__ = ["add_viewer_arguments", "open_stream", "close_stream", "ViewerSinks", "ViewerError",
+           "has_display", "rrd_entities", "rrd_text", "register", "APP_ID"]
