@@ -1,0 +1,670 @@
+"""Reproduce the seed paper's SmallSat results (Dossogne, Noël, Kerschen; Fig. 4-12, Table 2).
+
+Runs the simulated SmallSat (``daq.sim.smallsat``; multisine 5-50 Hz at the NC2 wheel side,
+axial; 1 kHz; 8192-sample periods, 6 periods of which 5 are dropped as in the paper) at
+1 N RMS (linear: no stop is reached) and 100 N RMS (both NC2-Z stops hit), then:
+
+- Fig. 4 / 7: information criterion over orders 2..60 with 3 / 39 channels;
+- Fig. 5 / 8: stabilisation diagrams (3 / 39 channels), Fig. 8 coloured by the MDI class;
+- Table 2 / Fig. 6: NC2-Z coefficients at orders 8, 10, 12 (3 channels);
+- Fig. 9 / 12: H2 and H-infinity MDI at order 38 (39 channels) with thresholds;
+- Fig. 10: NC2-Z coefficients before / after spurious-pole removal (39 channels, order 38);
+- Fig. 11: driving-point FRF: 1 N linear, synthesised underlying linear at 100 N, and the
+  100 N nonlinear response (measured output / force on the excited lines);
+- the automatic pipeline's choices, Table-1 mode recovery and the MDI confusion table.
+
+Figures go to ``docs/img/``; numbers to ``bench/out/reproduce_paper.json`` and (``--write``)
+to the "Paper reproduction" section of ``bench/RESULTS.md``. Usage::
+
+    python bench/reproduce_paper.py [--snr-db 40] [--write] [--no-figures]
+
+Simulated records are cached in ``bench/out/`` (``.npz``) so figures can be redrawn fast.
+matplotlib is used here only (never in ``ident``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+for _v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_v, "1")
+
+import numpy as np  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from ident import auto  # noqa: E402
+from ident.basis import Nonlinearity  # noqa: E402
+from ident.periodic import prepare_frequency_data  # noqa: E402
+
+OUT = ROOT / "bench" / "out"
+IMG = ROOT / "docs" / "img"
+FS = 1000.0
+N = 8192
+P_TOT, P_TR = 6, 5
+EXC_BAND = (5.0, 50.0)
+PROC_BAND = (5.0, 250.0)
+DRIVE = "NC2W-Z"
+#: The 3 channels of the paper's section 5.3 are not named there; we take the two sides of
+#: NC2 in Z (needed for the coefficient: driving point and the other end of the element)
+#: and the wheel in Z. Chosen before any run, never changed after looking at results.
+THREE = ("NC2W-Z", "NC2B-Z", "WHEEL-Z")
+#: Paper §5.2: "the amplitude and the location of the excitation caused impacts exclusively
+#: on the negative and positive mechanical stops of NC 2". With daq.sim.smallsat's default
+#: clearances (1.6 mm) the NC1/3/4-Z stops also close 0.2-2 % of the time at 100 N RMS, an
+#: unmodelled nonlinearity that biased c_NC2 by 4-15 %. We open those stops (10 mm) to meet
+#: the paper's condition (checked: their contact fraction must be exactly 0).
+ONLY_NC2_CLEARANCES = {"NC1-Z": (10.0, 10.0), "NC3-Z": (10.0, 10.0), "NC4-Z": (10.0, 10.0)}
+PAPER = {
+    "fig4_selected_order_3ch": 10, "fig7_selected_order_39ch": 22,
+    "table2": {8: {"neg": (116.38, -0.30, 1.71, 2.37), "pos": (89.09, 0.76, 2.38, 2.03)},
+               10: {"neg": (117.12, 0.34, 0.54, 2.54), "pos": (88.32, -0.10, 0.78, 2.36)},
+               12: {"neg": (116.96, 0.20, 2.25, 2.15), "pos": (88.15, -0.30, 2.42, 2.11)}},
+    "separation_h2": 4.35, "separation_hinf": 1.15,
+}
+
+
+# ------------------------------------------------------------------------------ simulation
+def _simulate(level_n: float, nonlinear: bool, seed: int = 1):
+    """Periodic SmallSat record (cached): force (P N,), displacements (P N, 39), names."""
+    import hashlib
+    from daq.multisine import multisine
+    from daq.sim.integrate import simulate
+    from daq.sim.smallsat import smallsat_model
+    model = smallsat_model(nonlinear=nonlinear, clearances=ONLY_NC2_CLEARANCES)
+    h = hashlib.sha1()
+    for a in (model.mass, model.damping, model.stiffness, model.force_matrix):
+        h.update(np.ascontiguousarray(a, float).tobytes())
+    h.update(repr([(e.name, e.kind, e.coefficients, e.clearances)
+                   for e in model.nonlinearities]).encode())
+    OUT.mkdir(parents=True, exist_ok=True)
+    path = OUT / (f"smallsat_{'nl' if nonlinear else 'lin'}_{level_n:g}N_seed{seed}_"
+                  f"{h.hexdigest()[:10]}.npz")
+    if path.exists():
+        z = np.load(path, allow_pickle=False)
+        return z["u"], z["y"], tuple(str(s) for s in z["names"]), json.loads(str(z["info"]))
+    ms = multisine(N, FS, EXC_BAND, level_n, n_periods=P_TOT, seed=seed)
+    u = np.asarray(ms.signal[0], float)
+    t0 = time.perf_counter()
+    res = simulate(model, u[:, None], FS, periodic=N, quantities=("displacement",),
+                   count_from=P_TR * N)
+    info = {"sim_s": time.perf_counter() - t0, "contact_fraction": res.contact_fraction,
+            "iterations_max": res.iterations_max, "clearances_override": ONLY_NC2_CLEARANCES}
+    others = {k: v for k, v in res.contact_fraction.items() if not k.startswith("NC2-Z") and v > 0}
+    if others:
+        raise RuntimeError(f"stops other than NC2-Z make contact: {others} (the paper's run "
+                           "impacts only NC2-Z; raise ONLY_NC2_CLEARANCES)")
+    names = tuple(model.measured)
+    np.savez(path, u=u, y=res.displacement, names=np.array(names), info=json.dumps(info))
+    return u, res.displacement, names, info
+
+
+def nc2z_basis():
+    """Trilinear NC2-Z basis (clearances known, as in the paper), relative W - B."""
+    from daq.sim.smallsat import DEFAULT_CLEARANCES
+    return [Nonlinearity(name="NC2-Z", kind="trilinear", channels={"NC2W-Z": 1.0, "NC2B-Z": -1.0},
+                         clearances=tuple(DEFAULT_CLEARANCES["NC2-Z"]))]
+
+
+def smallsat_frequency_data(level: str = "100N", n_channels: int = 39, snr_db: float | None = None,
+                            seed: int = 1, noise_seed: int = 7, transient_periods: int = P_TR):
+    """FrequencyData of the simulated SmallSat and the channel names.
+
+    ``snr_db`` adds white output noise at that SNR (per channel, relative to its RMS) to
+    every period before averaging; the single kept period is then noisy (no averaging).
+    """
+    lvl = 100.0 if level == "100N" else 1.0
+    u, y, names, info = _simulate(lvl, nonlinear=(level == "100N"), seed=seed)
+    chans = list(names) if n_channels == 39 else list(THREE)
+    idx = [names.index(c) for c in chans]
+    y = y[:, idx].copy()
+    if snr_db is not None:
+        rng = np.random.default_rng(noise_seed)
+        rms = np.sqrt(np.mean(y[P_TR * N:] ** 2, axis=0))
+        y = y + rng.standard_normal(y.shape) * rms * 10 ** (-snr_db / 20)
+    basis = nc2z_basis() if level == "100N" else []
+    data = prepare_frequency_data(u=u, y=y, sample_rate_hz=FS, samples_per_period=N, basis=basis,
+                                  band_hz=PROC_BAND, transient_periods=transient_periods,
+                                  output_names=chans, input_names=("F-NC2W-Z",))
+    return data, chans, info
+
+
+# ------------------------------------------------------------------------------ coefficients
+def coefficient_curves(model, data, band=EXC_BAND):
+    """``c_a(f)`` on the excited lines by signed reciprocity (spec §2.3), per basis column.
+
+    Returns ``(f, {name: c(f) complex})``.
+    """
+    names = list(data.output_names)
+    f = data.frequencies_hz[data.excited]
+    H = model.frf(f)                                        # (F, p, m_e)
+    r_i = names.index(DRIVE)
+    out = {}
+    for a, bn in enumerate(data.basis_names):
+        L = {"NC2W-Z": 1.0, "NC2B-Z": -1.0}
+        den = sum(w * H[:, names.index(ch), 0] for ch, w in L.items())
+        out[bn] = -H[:, r_i, data.n_inputs + a] / den
+    return f, out
+
+
+def coefficient_summary(model, data, truth=None):
+    """Table-2 statistics on the excited band: mean Re, error %, std Re, log10|Re/Im|, LS."""
+    from daq.sim.smallsat import NC2Z_CONTACT
+    truth = truth or NC2Z_CONTACT
+    f, curves = coefficient_curves(model, data)
+    out = {}
+    for name, c in curves.items():
+        side = "neg" if name.endswith("neg") else "pos"
+        mre = float(np.mean(c.real))
+        out[side] = {"name": name, "mean": mre, "exact": truth[side],
+                     "error_pct": 100 * (mre - truth[side]) / truth[side],
+                     "std": float(np.std(c.real)),
+                     "log10_re_im": float(np.log10(abs(mre / np.mean(c.imag))))}
+    return out
+
+
+def make_coefficients_callback(data):
+    return lambda model: coefficient_summary(model, data)
+
+
+# ------------------------------------------------------------------------------ truth
+def table1():
+    from daq.sim.smallsat import TABLE1
+    return [(f, z) for f, z, _ in TABLE1]
+
+
+def match_modes(freqs, damps, tol_f=0.005, tol_z=0.05):
+    """For each Table-1 mode, the closest identified mode within 0.5 % / 5 % (or None)."""
+    out = []
+    used = set()
+    for ft, zt in table1():
+        best = None
+        for i, (f, z) in enumerate(zip(freqs, damps)):
+            if i in used:
+                continue
+            if abs(f - ft) / ft <= tol_f and abs(z - zt) / zt <= tol_z:
+                if best is None or abs(f - ft) < abs(freqs[best] - ft):
+                    best = i
+        if best is not None:
+            used.add(best)
+        out.append(None if best is None else (float(freqs[best]), float(damps[best])))
+    return out
+
+
+def is_physical_truth(f, z, tol_f=0.01, tol_z=0.25):
+    """Truth label of an identified pole: within 1 % / 25 % of a Table-1 mode (looser than
+    the 0.5 %/5 % 'identified' criterion: a pole that is the model's image of a true mode)."""
+    return any(abs(f - ft) / ft <= tol_f and abs(z - zt) / zt <= tol_z for ft, zt in table1())
+
+
+# ------------------------------------------------------------------------------ figures
+def _plt():
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    return plt
+
+
+MARKERS = {"new": ".", "frequency": "x", "damping": "s", "mode": "o", "stable": "^"}
+
+
+def fig_ic(res, path, title):
+    plt = _plt()
+    ic = res.information_criterion
+    fig, ax = plt.subplots(figsize=(6, 3.2))
+    ok = np.isfinite(ic.value)
+    ax.plot(ic.orders[ok], ic.value[ok], "k.-", lw=1)
+    ax.plot(ic.orders[~ok], ic.model_error[~ok] * (1 + ic.orders[~ok] / ic.n_lines), "rx",
+            label="unstable (excluded)")
+    k = list(ic.orders).index(res.selected_order)
+    ax.plot(res.selected_order, ic.value[k], "o", mfc="none", mec="r", ms=10,
+            label=f"optimal order {res.selected_order}")
+    ax.set_xlabel("Model order")
+    ax.set_ylabel("Information criterion")
+    ax.set_yscale("log")
+    ax.set_title(title, fontsize=9)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def fig_stab(res, path, title, physical_freqs=None, orders_marked=()):
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(6.5, 4.5))
+    for o in res.stabilisation.orders:
+        for f, c, u in zip(o.frequency_hz, o.classes, o.unstable):
+            col = "k"
+            if physical_freqs is not None:
+                col = "g" if np.min(np.abs(np.asarray(physical_freqs) - f) / f, initial=1) < 0.01 \
+                    else "r"
+            if u:
+                col = "0.6"
+            ax.plot(f, o.order, MARKERS[c], color=col, ms=4, mfc="none" if c != "new" else col)
+    for ft, _ in table1():
+        ax.axvline(ft, color="0.85", lw=0.6, zorder=0)
+    for n in orders_marked:
+        ax.axhline(n, color="b", ls="--", lw=0.7)
+    ax.set_xlim(*EXC_BAND)
+    ax.set_xlabel("Frequency (Hz)")
+    ax.set_ylabel("Model order")
+    ax.set_title(title, fontsize=9)
+    handles = [plt.Line2D([], [], ls="", marker=m, color="k", mfc="none" if c != "new" else "k",
+                          label=c) for c, m in MARKERS.items()]
+    ax.legend(handles=handles, fontsize=7, loc="upper left", ncol=5)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def fig_coeffs(curves_by_label, path, title):
+    plt = _plt()
+    from daq.sim.smallsat import NC2Z_CONTACT
+    fig, axes = plt.subplots(2, 1, figsize=(6.5, 5), sharex=True)
+    for ax, side in zip(axes, ("pos", "neg")):
+        for label, (f, cur) in curves_by_label.items():
+            name = [k for k in cur if k.endswith(side)][0]
+            ax.plot(f, cur[name].real, lw=1, label=label)
+        ax.axhline(NC2Z_CONTACT[side], color="k", ls="--", lw=0.8)
+        ax.set_ylabel(f"Re c NC2-Z {side} (N/mm)")
+        lo, hi = NC2Z_CONTACT[side] * 0.85, NC2Z_CONTACT[side] * 1.15
+        ax.set_ylim(lo, hi)
+        ax.legend(fontsize=7)
+    axes[-1].set_xlabel("Frequency (Hz)")
+    axes[0].set_title(title, fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def fig_mdi(md, values, phys, thr, path, title, truth):
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(6.5, 3.5))
+    inb = md.in_band
+    for f, v, p, t, ib in zip(md.frequency_hz, values, phys, truth, inb):
+        if not ib:
+            continue
+        ax.semilogy(f, max(v, 1e-30), "o", color="g" if p else "r",
+                    mec="k" if t else "none", ms=6)
+    if np.isfinite(thr):
+        ax.axhline(thr, color="k", ls="--", lw=0.8)
+    ax.set_xlim(*EXC_BAND)
+    ax.set_xlabel("Frequency (Hz)")
+    ax.set_ylabel("Modal dominancy index")
+    ax.set_title(title + " (green: kept, below the dashed gap threshold = kept by "
+                 "stabilisation; red: removed; black edge: true mode)", fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def fig_frf(f_lin, h_lin, f_ul, h_ul, f_nl, h_nl, path):
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(6.5, 3.5))
+    db = lambda h: 20 * np.log10(np.abs(h))  # noqa: E731
+    ax.plot(f_lin, db(h_lin), "k", lw=1, label="1 N (linear)")
+    ax.plot(f_ul, db(h_ul), "b", lw=1, label="underlying linear, 100 N (FNSI)")
+    ax.plot(f_nl, db(h_nl), "r", lw=0.8, label="nonlinear, 100 N")
+    ax.set_xlim(*EXC_BAND)
+    ax.set_xlabel("Frequency (Hz)")
+    ax.set_ylabel("Amplitude (dB, mm/N)")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+# ------------------------------------------------------------------------------ runs
+def _modes(model):
+    m = model.poles.modes()
+    sel = (m["frequency_hz"] >= EXC_BAND[0]) & (m["frequency_hz"] <= EXC_BAND[1]) & m["stable"]
+    return m["frequency_hz"][sel], m["damping_ratio"][sel]
+
+
+def _recovery(model):
+    f, z = _modes(model)
+    rec = match_modes(f, z)
+    return {"found": int(sum(r is not None for r in rec)),
+            "modes": [{"mode": i + 1, "true_hz": t[0], "true_zeta": t[1],
+                       "found": None if r is None else {"frequency_hz": r[0], "damping_ratio": r[1]}}
+                      for i, (t, r) in enumerate(zip(table1(), rec))]}
+
+
+def _confusion(res, values, phys):
+    md = res.modal_dominancy
+    rows = []
+    tab = {"TP": 0, "FP": 0, "FN": 0, "TN": 0}
+    for k in np.flatnonzero(md.in_band):
+        t = is_physical_truth(md.frequency_hz[k], md.damping_ratio[k])
+        p = bool(phys[k])
+        key = ("T" if t == p else "F") + ("P" if p else "N")
+        tab[key] += 1
+        rows.append({"frequency_hz": float(md.frequency_hz[k]),
+                     "damping_ratio": float(md.damping_ratio[k]), "mdi": float(values[k]),
+                     "kept": p, "true_mode": t})
+    return tab, rows
+
+
+def run(snr_db=None, figures=True, tag=""):
+    t0 = time.perf_counter()
+    out: dict = {"snr_db": snr_db}
+    d3, ch3, info100 = smallsat_frequency_data("100N", 3, snr_db=snr_db)
+    d39, ch39, _ = smallsat_frequency_data("100N", 39, snr_db=snr_db)
+    d39l, _, info1 = smallsat_frequency_data("1N", 39, snr_db=snr_db)
+    out["simulation"] = {"100N": info100, "1N": info1}
+    sfx = f"_snr{int(snr_db)}" if snr_db is not None else ""
+
+    # 3 channels: IC, stabilisation, Table 2
+    r3 = auto.identify_auto(d3, orders=range(2, 61), coefficients=make_coefficients_callback(d3))
+    out["three_channels"] = {
+        "channels": list(ch3), "selected_order": r3.selected_order,
+        "paper_selected_order": PAPER["fig4_selected_order_3ch"],
+        "ic": r3.information_criterion.to_list(), "ic_band": str(r3.information_criterion.band),
+        "coefficients_selected": r3.coefficients["selected"],
+        "coefficients_reduced": r3.coefficients.get("reduced"),
+        "table2": {n: coefficient_summary(r3.models[n], d3) for n in (8, 10, 12)},
+        "recovery_selected": _recovery(r3.model),
+        "confidence": r3.confidence, "separation_ratio": r3.separation_ratio,
+    }
+    if figures:
+        fig_ic(r3, IMG / f"fig4_ic_3ch{sfx}.png", "Fig. 4: information criterion, 3 channels")
+        fig_stab(r3, IMG / f"fig5_stab_3ch{sfx}.png", "Fig. 5: stabilisation, 3 channels",
+                 orders_marked=(r3.selected_order,))
+        fig_coeffs({f"n = {n}": coefficient_curves(r3.models[n], d3) for n in (8, 10, 12)},
+                   IMG / f"fig6_coeff_3ch{sfx}.png", "Fig. 6: NC2-Z coefficients, 3 channels")
+
+    # 39 channels: IC-selected order
+    r39 = auto.identify_auto(d39, orders=range(2, 61), coefficients=make_coefficients_callback(d39))
+    out["all_channels"] = {
+        "selected_order": r39.selected_order, "paper_selected_order": PAPER["fig7_selected_order_39ch"],
+        "ic": r39.information_criterion.to_list(), "ic_band": str(r39.information_criterion.band),
+        "coefficients_selected": r39.coefficients["selected"],
+        "coefficients_reduced": r39.coefficients.get("reduced"),
+        "recovery_selected": _recovery(r39.model),
+        "recovery_reduced_at_selected": None if r39.reduced is None else _recovery(r39.reduced),
+        "confidence": r39.confidence, "separation_ratio": r39.separation_ratio,
+        "timings_s": r39.timings_s,
+    }
+    # 39 channels at order 38: MDI, reduction
+    r38 = auto.identify_auto(d39, orders=range(2, 61), reduce_at=38,
+                             coefficients=make_coefficients_callback(d39))
+    md = r38.modal_dominancy
+    from ident.mdi import largest_gap_threshold
+    thr_inf = largest_gap_threshold(md.values["hinf"], candidates=r38.candidates)
+    truth = np.array([is_physical_truth(f, z) for f, z in zip(md.frequency_hz, md.damping_ratio)])
+    tab_h2, rows_h2 = _confusion(r38, md.values["h2"], r38.physical)
+    tab_inf, _ = _confusion(r38, md.values["hinf"], thr_inf.physical)
+    # oracle separation (uses the truth, for reporting only): lowest true / highest false
+    def oracle_sep(v):
+        inb = md.in_band & md.stable
+        t, f_ = v[inb & truth], v[inb & ~truth]
+        return float(t.min() / f_.max()) if t.size and f_.size else None
+    out["order38"] = {
+        "separation_ratio_h2": r38.separation_ratio, "separation_ratio_hinf": thr_inf.separation_ratio,
+        "paper_separation_h2": PAPER["separation_h2"], "paper_separation_hinf": PAPER["separation_hinf"],
+        "oracle_separation_h2": oracle_sep(md.values["h2"]),
+        "oracle_separation_hinf": oracle_sep(md.values["hinf"]),
+        "confusion_h2": tab_h2, "confusion_hinf": tab_inf, "poles_h2": rows_h2,
+        "confidence": r38.confidence,
+        "coefficients_full": r38.coefficients["full"],
+        "coefficients_reduced": r38.coefficients.get("reduced"),
+        "reduced_order": None if r38.reduced is None else r38.reduced.order,
+        "recovery_full": _recovery(r38.full_model),
+        "recovery_reduced": None if r38.reduced is None else _recovery(r38.reduced),
+        "mdi": r38.mdi_table(),
+    }
+    if figures:
+        fig_ic(r39, IMG / f"fig7_ic_39ch{sfx}.png", "Fig. 7: information criterion, 39 channels")
+        fig_stab(r38, IMG / f"fig8_stab_39ch{sfx}.png",
+                 "Fig. 8: stabilisation, 39 channels (green/red: MDI class at order 38)",
+                 physical_freqs=md.frequency_hz[r38.physical],
+                 orders_marked=(r39.selected_order, 38))
+        fig_mdi(md, md.values["h2"], r38.physical, r38.threshold.threshold,
+                IMG / f"fig9_mdi_h2{sfx}.png", "Fig. 9: H2 MDI, order 38", truth)
+        fig_mdi(md, md.values["hinf"], thr_inf.physical, thr_inf.threshold,
+                IMG / f"fig12_mdi_hinf{sfx}.png", "Fig. 12: Hinf MDI, order 38", truth)
+        curves = {"original (n = 38)": coefficient_curves(r38.full_model, d39)}
+        if r38.reduced is not None:
+            curves[f"reduced (n = {r38.reduced.order})"] = coefficient_curves(r38.reduced, d39)
+        fig_coeffs(curves, IMG / f"fig10_coeff_reduction{sfx}.png",
+                   "Fig. 10: NC2-Z coefficients before/after spurious-pole removal")
+        # Fig. 11: driving-point FRF
+        r = list(d39.output_names).index(DRIVE)
+        exl = d39l.excited
+        h_lin = d39l.Y[exl, r] / d39l.E_physical[exl, 0]
+        exn = d39.excited
+        h_nl = d39.Y[exn, r] / d39.E_physical[exn, 0]
+        fm = np.linspace(*EXC_BAND, 2000)
+        mdl = r38.reduced if r38.reduced is not None else r38.full_model
+        h_ul = mdl.underlying_linear_frf(fm)[:, r, 0]
+        fig_frf(d39l.frequencies_hz[exl], h_lin, fm, h_ul, d39.frequencies_hz[exn], h_nl,
+                IMG / f"fig11_frf{sfx}.png")
+        # error of the synthesised underlying linear FRF against the 1 N FRF
+    # reduction at other high orders (the paper's "order that holds every mode" is 38 there;
+    # in this simulation more modes stabilise above 40, see Fig. 8)
+    out["high_orders"] = {}
+    for ra in (44, 50, 58, 60):
+        rr = auto.identify_auto(d39, orders=range(2, 61), reduce_at=ra,
+                                coefficients=make_coefficients_callback(d39))
+        mdr = rr.modal_dominancy
+        tab, _ = _confusion(rr, mdr.values["h2"], rr.physical)
+        out["high_orders"][ra] = {
+            "coefficients_full": rr.coefficients["full"],
+            "coefficients_reduced": rr.coefficients.get("reduced"),
+            "reduced_order": None if rr.reduced is None else rr.reduced.order,
+            "recovery_full": _recovery(rr.full_model)["found"],
+            "recovery_reduced": None if rr.reduced is None else _recovery(rr.reduced)["found"],
+            "recovery_reduced_modes": None if rr.reduced is None else _recovery(rr.reduced)["modes"],
+            "separation_ratio_h2": rr.separation_ratio, "confusion_h2": tab,
+            "confidence": rr.confidence["level"]}
+    out["diagnosis"] = diagnose(d39l, d39) if snr_db is None else None
+    r = list(d39.output_names).index(DRIVE)
+    exl = d39l.excited
+    h_lin = d39l.Y[exl, r] / d39l.E_physical[exl, 0]
+    mdl = r38.reduced if r38.reduced is not None else r38.full_model
+    h_ul = mdl.underlying_linear_frf(d39l.frequencies_hz[exl])[:, r, 0]
+    out["fig11_underlying_vs_1N_rel_rms"] = float(np.sqrt(np.mean(np.abs(h_ul - h_lin) ** 2)
+                                                          / np.mean(np.abs(h_lin) ** 2)))
+    out["elapsed_s"] = time.perf_counter() - t0
+    return out
+
+
+def diagnose(d_lin, d_nl):
+    """Why Table-1 modes are missed at 100 N (noise-free): linear data, higher orders, and a
+    basis function computed at 4 kHz (spec §8.4 aliasing floor)."""
+    from ident import fnsi
+    from daq.multisine import multisine
+    from daq.sim.integrate import simulate
+    from daq.sim.smallsat import smallsat_model
+    out = {}
+    dec = fnsi.subspace_decomposition(d_lin, max_order=60)
+    out["linear_1N"] = {n: _recovery(auto._model_at_order_fast(dec, d_lin, n))["found"]
+                        for n in (22, 30, 38, 50, 60)}
+    dec = fnsi.subspace_decomposition(d_nl, max_order=100, block_rows=4)
+    out["nonlinear_100N_high_orders"] = {
+        n: _recovery(auto._model_at_order_fast(dec, d_nl, n))["found"] for n in (60, 70, 80, 90, 100)}
+    fs4, n4 = 4000.0, 4 * N
+    m = smallsat_model(nonlinear=True, clearances=ONLY_NC2_CLEARANCES)
+    ms = multisine(n4, fs4, EXC_BAND, 100.0, n_periods=P_TOT, seed=1)
+    res = simulate(m, ms.signal[0][:, None], fs4, periodic=n4, quantities=("displacement",),
+                   count_from=P_TR * n4, oversample=5)
+    d4 = prepare_frequency_data(u=ms.signal[0], y=res.displacement, sample_rate_hz=fs4,
+                                samples_per_period=n4, basis=nc2z_basis(), band_hz=PROC_BAND,
+                                transient_periods=P_TR, output_names=tuple(m.measured),
+                                input_names=("F-NC2W-Z",))
+    dec = fnsi.subspace_decomposition(d4, max_order=60)
+    rows = {}
+    for n in (22, 30, 38, 44, 50, 60):
+        mod = auto._model_at_order_fast(dec, d4, n)
+        c = coefficient_summary(mod, d4)
+        rows[n] = {"found": _recovery(mod)["found"], "stable": bool(mod.stable),
+                   "error_neg_pct": c["neg"]["error_pct"], "error_pos_pct": c["pos"]["error_pct"]}
+    out["nonlinear_100N_4kHz"] = rows
+    return out
+
+
+# ------------------------------------------------------------------------------ RESULTS.md
+def replace_section(path: Path, title: str, body: str) -> None:
+    """Replace (or append) the ``## title`` section of a markdown file."""
+    text = path.read_text() if path.exists() else "# Benchmark results\n"
+    lines = text.splitlines()
+    start = next((i for i, l in enumerate(lines) if l.startswith("## ") and l[3:].startswith(title)),
+                 None)
+    new = body.rstrip("\n").splitlines()
+    if start is None:
+        lines += [""] + new
+    else:
+        end = next((j for j in range(start + 1, len(lines)) if lines[j].startswith("## ")),
+                   len(lines))
+        lines[start:end] = new + [""]
+    path.write_text("\n".join(lines).rstrip("\n") + "\n")
+
+
+def _fmt_coef(c):
+    if not c:
+        return "-"
+    return " / ".join(f"{c[s]['error_pct']:+.3f} % (std {c[s]['std']:.2f})" for s in ("neg", "pos"))
+
+
+def _rec_str(rec):
+    miss = [m["mode"] for m in rec["modes"] if m["found"] is None]
+    return f"{rec['found']}/11 (missed {', '.join(map(str, miss)) or 'none'})"
+
+
+def results_markdown(res0: dict, res40: dict | None) -> str:
+    """The "Paper reproduction" section from the two runs' JSON."""
+    stamp = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+    L = [f"## Paper reproduction ({stamp})", "",
+         "`python bench/reproduce_paper.py` and `--snr-db 40`: simulated SmallSat "
+         "(`daq.sim.smallsat`), multisine 5-50 Hz at NC2W-Z, 1 kHz, 6 periods of 8192 samples "
+         "(5 dropped), processed 5-250 Hz, trilinear NC2-Z basis with known clearances. "
+         "NC1/3/4-Z stops opened (clearance 10 mm) so that only NC2-Z impacts, as stated in the "
+         "paper (with the simulator's 1.6 mm they close 0.2-2 % of the time and bias c_NC2 by "
+         "4-15 %). 40 dB: white output noise at 40 dB SNR per channel on every period (one kept "
+         "period, no averaging, unweighted). Coefficient errors are mean Re c over the excited "
+         "lines vs the exact 116.73 (neg) / 88.41 (pos) N/mm; figures in `docs/img/` "
+         "(`_snr40` suffix for the noisy run). Default options of `identify_auto` throughout.", ""]
+    runs = [("noise-free", res0)] + ([("40 dB SNR", res40)] if res40 else [])
+    L += ["### Order selection and NC2-Z coefficients (Fig. 4, 7; Table 2)", "",
+          "| data | channels | IC band | IC order (paper) | coefficient error at IC order, neg / pos | after reduction at IC order |",
+          "|---|---|---|---|---|---|"]
+    for lab, r in runs:
+        t, a = r["three_channels"], r["all_channels"]
+        L.append(f"| {lab} | 3 | {t['ic_band']} | {t['selected_order']} (10) | "
+                 f"{_fmt_coef(t['coefficients_selected'])} | {_fmt_coef(t['coefficients_reduced'])} |")
+        L.append(f"| {lab} | 39 | {a['ic_band']} | {a['selected_order']} (22) | "
+                 f"{_fmt_coef(a['coefficients_selected'])} | {_fmt_coef(a['coefficients_reduced'])} |")
+    L += ["", "Table 2 (3 channels; ours beside the paper's: mean Re, error %, std, log10|Re/Im|):", "",
+          "| order | NC | exact | paper | ours noise-free | ours 40 dB |", "|---|---|---|---|---|---|"]
+    for n in (8, 10, 12):
+        for side in ("neg", "pos"):
+            p = PAPER["table2"][n][side]
+            o0 = res0["three_channels"]["table2"][str(n) if str(n) in res0["three_channels"]["table2"] else n][side]
+            cells = [f"{o0['mean']:.2f}, {o0['error_pct']:+.2f} %, {o0['std']:.2f}, {o0['log10_re_im']:.2f}"]
+            if res40:
+                t2 = res40["three_channels"]["table2"]
+                o4 = t2[str(n) if str(n) in t2 else n][side]
+                cells.append(f"{o4['mean']:.2f}, {o4['error_pct']:+.2f} %, {o4['std']:.2f}, {o4['log10_re_im']:.2f}")
+            else:
+                cells.append("-")
+            L.append(f"| {n} | 2-Z ({side}.) | {o0['exact']:.2f} | {p[0]:.2f}, {p[1]:+.2f} %, {p[2]:.2f}, "
+                     f"{p[3]:.2f} | {cells[0]} | {cells[1]} |")
+    L += ["", "### MDI at order 38, 39 channels (Fig. 8, 9, 12)", "",
+          "Truth label of an identified in-band stable pole: within 1 % in frequency and 25 % in "
+          "damping of a Table-1 mode. 'Oracle' separation = lowest true-mode MDI / highest "
+          "spurious MDI (uses the truth; > 1 means a perfect threshold exists).", "",
+          "| data | H2 separation (paper 4.35) | H∞ separation (paper 1.15) | oracle H2 / H∞ | H2 confusion TP/FP/FN/TN | H∞ confusion | confidence |",
+          "|---|---|---|---|---|---|---|"]
+    for lab, r in runs:
+        o = r["order38"]
+        ch, ci = o["confusion_h2"], o["confusion_hinf"]
+        fo = lambda x: "-" if x is None else f"{x:.3g}"  # noqa: E731
+        L.append(f"| {lab} | {o['separation_ratio_h2']:.3g} | {o['separation_ratio_hinf']:.3g} | "
+                 f"{fo(o['oracle_separation_h2'])} / {fo(o['oracle_separation_hinf'])} | "
+                 f"{ch['TP']}/{ch['FP']}/{ch['FN']}/{ch['TN']} | {ci['TP']}/{ci['FP']}/{ci['FN']}/{ci['TN']} | "
+                 f"{o['confidence']['level']} |")
+    for lab, r in runs:
+        L += ["", f"In-band stable poles at order 38 ({lab}):", "",
+              "| f (Hz) | ζ | H2 MDI | kept | true mode |", "|---|---|---|---|---|"]
+        for p in sorted(r["order38"]["poles_h2"], key=lambda p: p["frequency_hz"]):
+            L.append(f"| {p['frequency_hz']:.3f} | {p['damping_ratio']:.4f} | {p['mdi']:.3g} | "
+                     f"{'yes' if p['kept'] else 'no'} | {'yes' if p['true_mode'] else 'no'} |")
+    L += ["", "### Spurious-pole removal (Fig. 10) and Table-1 modes", "",
+          "| data | reduce at | full model: error neg / pos | reduced (order): error neg / pos | Table-1 modes in reduced model (0.5 % / 5 %) | H2 separation | confidence |",
+          "|---|---|---|---|---|---|---|"]
+    for lab, r in runs:
+        o = r["order38"]
+        L.append(f"| {lab} | 38 | {_fmt_coef(o['coefficients_full'])} | ({o['reduced_order']}) "
+                 f"{_fmt_coef(o['coefficients_reduced'])} | "
+                 f"{_rec_str(o['recovery_reduced']) if o['recovery_reduced'] else '-'} | "
+                 f"{o['separation_ratio_h2']:.3g} | {o['confidence']['level']} |")
+        for ra, h in r.get("high_orders", {}).items():
+            rec = ({"found": h["recovery_reduced"], "modes": h["recovery_reduced_modes"]}
+                   if h["recovery_reduced_modes"] else None)
+            L.append(f"| {lab} | {ra} | {_fmt_coef(h['coefficients_full'])} | ({h['reduced_order']}) "
+                     f"{_fmt_coef(h['coefficients_reduced'])} | {_rec_str(rec) if rec else '-'} | "
+                     f"{h['separation_ratio_h2']:.3g} | {h['confidence']} |")
+    dg = res0.get("diagnosis")
+    if dg:
+        L += ["", "Diagnosis of the missed modes (noise-free; Table-1 modes found within 0.5 % / 5 % "
+              "in the *full* model at each order):", "",
+              "| data | " + " | ".join(f"n = {n}" for n in dg["linear_1N"]) + " |",
+              "|---|" + "---|" * len(dg["linear_1N"]),
+              "| 1 N linear, 1 kHz | " + " | ".join(str(v) for v in dg["linear_1N"].values()) + " |", "",
+              "| data | " + " | ".join(f"n = {n}" for n in dg["nonlinear_100N_high_orders"]) + " |",
+              "|---|" + "---|" * len(dg["nonlinear_100N_high_orders"]),
+              "| 100 N, 1 kHz, i = 4 | " + " | ".join(
+                  str(v) for v in dg["nonlinear_100N_high_orders"].values()) + " |", "",
+              "| 100 N, basis at 4 kHz | " + " | ".join(f"n = {n}" for n in dg["nonlinear_100N_4kHz"]) + " |",
+              "|---|" + "---|" * len(dg["nonlinear_100N_4kHz"]),
+              "| modes found | " + " | ".join(str(v["found"]) for v in dg["nonlinear_100N_4kHz"].values()) + " |",
+              "| c_NC2 error neg / pos (%) | " + " | ".join(
+                  f"{v['error_neg_pct']:+.3f} / {v['error_pos_pct']:+.3f}"
+                  for v in dg["nonlinear_100N_4kHz"].values()) + " |", "",
+              "Reading: the linear data give 10/11 from n = 30 (mode 6, 30.52 Hz at 15.5 % "
+              "damping, is the one missed). At 100 N the basis function is broadband and "
+              "excites the structure's modes above the band, which take states; higher orders "
+              "(to 100) and a basis computed at 4 kHz (no aliasing: c_NC2 errors fall to "
+              "~0.01 %) still leave modes out of the *full* models, so this is not an MDI or "
+              "reduction issue (which modes: the rows above)."]
+    L += ["", f"Fig. 11: relative RMS difference between the synthesised underlying linear "
+          f"driving-point FRF at 100 N (reduced model at 38) and the 1 N FRF over the excited "
+          f"band: {res0['fig11_underlying_vs_1N_rel_rms']:.3g} (noise-free)"
+          + (f", {res40['fig11_underlying_vs_1N_rel_rms']:.3g} (40 dB)" if res40 else "") + ".", ""]
+    return "\n".join(L) + "\n"
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--snr-db", type=float, default=None, help="output SNR (default noise-free)")
+    ap.add_argument("--no-figures", action="store_true")
+    ap.add_argument("--write", action="store_true",
+                    help="only (re)write the 'Paper reproduction' section of bench/RESULTS.md "
+                         "from the saved JSON of both runs")
+    a = ap.parse_args(argv)
+    OUT.mkdir(parents=True, exist_ok=True)
+    IMG.mkdir(parents=True, exist_ok=True)
+    if a.write:
+        r0 = json.loads((OUT / "reproduce_paper.json").read_text())
+        p40 = OUT / "reproduce_paper_snr40.json"
+        r40 = json.loads(p40.read_text()) if p40.exists() else None
+        replace_section(ROOT / "bench" / "RESULTS.md", "Paper reproduction", results_markdown(r0, r40))
+        print("wrote bench/RESULTS.md (Paper reproduction)")
+        return 0
+    res = run(snr_db=a.snr_db, figures=not a.no_figures)
+    sfx = "" if a.snr_db is None else f"_snr{int(a.snr_db)}"
+    path = OUT / f"reproduce_paper{sfx}.json"
+    path.write_text(json.dumps(res, indent=1, default=lambda o: o.tolist()
+                               if hasattr(o, "tolist") else str(o)))
+    print(f"wrote {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
