@@ -35,6 +35,9 @@ from ident import order_selection as osel
 from ident import stabilisation as stab
 from ident.errors import IdentError
 
+#: Policies for the poles outside the band of interest (:attr:`AutoOptions.out_of_band`).
+OUT_OF_BAND: tuple[str, ...] = ("stabilised", "drop", "keep")
+
 __all__ = ["AutoOptions", "AutoResult", "identify_auto", "modal_ct_from_dt", "confidence_statement"]
 
 
@@ -46,8 +49,13 @@ class AutoOptions:
     ----------
     ic_band : {'auto', 'processed', 'excited'} or (float, float)
         Lines of the model error V (spec §8.3); see :func:`ident.order_selection.ic_line_mask`.
-    criterion : {'seed', 'aic'}
-        Seed Eq. 8 or the AIC-style parameter count (option).
+    criterion : {'mdl', 'seed', 'aic'}
+        ``I(n)`` (:func:`ident.order_selection.information_criterion`). ``mdl`` (default):
+        Rissanen's minimum description length with the state-space parameter count,
+        ``V exp(n_theta ln(N_r) / N_r)``. ``seed``: the paper's ``V (1 + n/F)`` (Eq. 8),
+        whose penalty is 3 % at n = 60 and F = 2000 lines, so on a noise or model-error
+        plateau its minimum falls anywhere (SmallSat at 40 dB: order 60 against 28 with
+        ``mdl``, docs/robust.md); its values are reported either way. ``aic``: AIC-style.
     band_of_interest_hz : (float, float) or None
         Band of the MDI and of the stabilisation diagram; default the excited band.
     mdi_norm : {'h2', 'seed', 'h2_single', 'hinf', 'hinf_band'}
@@ -74,12 +82,16 @@ class AutoOptions:
         Group near-duplicate poles with cancelling residues (spec §7.5).
     freq_tol, damping_tol, mac_tol : float
         Stabilisation tolerances (spec §4).
-    out_of_band : {'drop', 'keep'}
-        ``drop`` (default, the seed's reading): the reduced model holds only the physical
-        in-band modes. ``keep`` also leaves every stable pole the MDI does not judge (real
-        poles, pairs outside the band of interest). Measured on the SmallSat (docs/robust.md):
-        ``keep`` let out-of-band poles absorb the basis-function columns (3 channels, order
-        55: c_NC2 -98.8 % instead of -0.23 %). Unstable and Nyquist poles are always removed.
+    out_of_band : {'stabilised', 'drop', 'keep'}
+        Poles outside the band of interest, which the MDI does not judge. ``stabilised``
+        (default): a pair outside the band stays in the reduced model when it is stabilised
+        (at least in frequency) against the neighbouring orders and stands out of the
+        residual in its bandwidth (``detection_sigma``): genuine modes above the excitation
+        band carry the response the basis functions drive there; poles that appear at this
+        order only, or fit noise, are dropped. ``drop`` (the seed's reading): only the
+        physical in-band modes are kept. ``keep``: every stable pole outside the band (real
+        poles too). Unstable and Nyquist poles are always removed. Measured in
+        docs/robust.md.
     sweep_bd : {'fast', 'weighted'}
         B, D of the sweep's models when the data carry a noise covariance: ``fast`` uses the
         unweighted modal-form least squares for every order (they only feed V(n); poles and
@@ -99,19 +111,34 @@ class AutoOptions:
         Separation ratios below ``ambiguous_ratio`` are reported as ambiguous, above
         ``clear_ratio`` as clear (spec §7.4: "below about 2, call it ambiguous").
     fallback : {'stabilisation', 'none'}
-        Combine the MDI split with stabilisation (spec §7.5 relative threshold, §8.5): an
-        eligible mode below the gap is kept if it is fully stable and
-        ``MDI >= fallback_rel_floor * max MDI``; when the largest-gap ratio is below
-        ``clear_ratio`` any mode stabilised in frequency qualifies. Reason: when no spurious
+        Combine the MDI split with stabilisation (spec §7.5, §8.5): an eligible mode below
+        the gap is kept if it is fully stable (frequency, damping and MACX against the
+        neighbouring orders); when the largest-gap ratio is below ``clear_ratio``, any mode
+        stabilised in frequency with ``MDI >= fallback_rel_floor * max MDI`` is kept too. Reason: when no spurious
         pole lies in band the largest gap falls between genuine modes, and dropping a genuine
         mode degrades the reduced model (measured on the lumped model: +8.9 % coefficient
         error) whereas keeping a weak spurious one only forgoes an improvement.
+    order_selection : {'consistent', 'ic'}
+        ``ic``: the selected order is ``argmin I`` (seed Eq. 8). ``consistent`` (default,
+        used when the coefficients can be computed: basis functions and a measured driving
+        point): ``argmin I`` over the orders whose coefficient spread ``rho(n)``
+        (:func:`ident.coefficients.coefficient_spread`) is within ``spread_factor`` of the
+        smallest; see :func:`ident.order_selection.select_order_consistent`.
+    detection_sigma : float
+        A mode is physical only if its energy in its bandwidth exceeds this many standard
+        deviations of the residual's energy there (:func:`ident.mdi.modal_detection`);
+        0 disables the test.
+    spread_factor : float
+        Gate of ``consistent`` selection. 3: on the SmallSat the orders whose coefficients
+        were within 0.1-0.3 % had ``rho`` within 3x of the best (docs/robust.md).
     fallback_rel_floor : float
-        Relative MDI floor of the fallback (spec §7.5 suggests 1e-3).
+        Relative MDI floor of the not-clear-gap fallback (spec §7.5 suggests 1e-3). Fully
+        stable modes need no floor: weakly excited genuine modes carry MDI 1e-6 to 1e-3 of the
+        largest (spec §8.5; SmallSat modes 9-11 with 39 channels).
     """
 
     ic_band: Any = "auto"
-    criterion: str = "seed"
+    criterion: str = "mdl"
     band_of_interest_hz: tuple | None = None
     mdi_norm: str = "h2"
     input_scaling: str = "default"
@@ -126,7 +153,7 @@ class AutoOptions:
     mac_tol: float = 0.98
     stab_lookback: int = 2
     sweep_bd: str = "fast"
-    out_of_band: str = "drop"
+    out_of_band: str = "stabilised"
     d_zero: bool = False
     weighted: bool = True
     block_rows: int | None = None
@@ -134,6 +161,9 @@ class AutoOptions:
     clear_ratio: float = 10.0
     fallback: str = "stabilisation"
     fallback_rel_floor: float = 1e-3
+    order_selection: str = "consistent"
+    spread_factor: float = 3.0
+    detection_sigma: float = 3.0
 
     def validate(self) -> "AutoOptions":
         """Raise :class:`IdentError` naming the bad option and the allowed values."""
@@ -153,10 +183,17 @@ class AutoOptions:
             raise IdentError("give top_n or manual_threshold, not both")
         if self.sweep_bd not in ("fast", "weighted"):
             raise IdentError(f"sweep_bd={self.sweep_bd!r} is not one of ('fast', 'weighted')")
-        if self.out_of_band not in ("keep", "drop"):
-            raise IdentError(f"out_of_band={self.out_of_band!r} is not one of ('keep', 'drop')")
+        if self.out_of_band not in OUT_OF_BAND:
+            raise IdentError(f"out_of_band={self.out_of_band!r} is not one of {OUT_OF_BAND}")
         if self.fallback not in ("stabilisation", "none"):
             raise IdentError(f"fallback={self.fallback!r} is not one of ('stabilisation', 'none')")
+        if self.order_selection not in ("consistent", "ic"):
+            raise IdentError(f"order_selection={self.order_selection!r} is not one of "
+                             "('consistent', 'ic')")
+        if not self.detection_sigma >= 0:
+            raise IdentError(f"detection_sigma must be >= 0, got {self.detection_sigma}")
+        if not self.spread_factor >= 1:
+            raise IdentError(f"spread_factor must be >= 1, got {self.spread_factor}")
         if self.min_physical < 1:
             raise IdentError(f"min_physical must be >= 1, got {self.min_physical}")
         return self
@@ -331,10 +368,7 @@ def _model_at_order_fast(decomp, data, order, *, d_zero=False, weighted_bd=True)
     if not 1 <= n <= decomp.max_order:
         raise IdentError(f"order {n} is outside 1..{decomp.max_order} (max order of this "
                          "decomposition)")
-    p = decomp.n_outputs
-    G = decomp.observability[:, :n]
-    c_d = G[:p].copy()
-    a_d = np.linalg.lstsq(G[:-p], G[p:], rcond=None)[0]
+    a_d, c_d = fnsi.state_matrices(decomp, n)
     bd = fast_estimate_bd(a_d, c_d, data, d_zero=d_zero)
     if bd is None:
         b_d, d_d = fnsi.estimate_bd(a_d, c_d, data, d_zero=d_zero, weighted=False)
@@ -345,17 +379,20 @@ def _model_at_order_fast(decomp, data, order, *, d_zero=False, weighted_bd=True)
                            output_names=data.output_names)
 
 
-def _fast_error_and_poles(model, data, mask):
-    """V(n) over ``mask`` and the modes of one model (modal form: O(F n (p + m_e)))."""
+def _model_output(model, data, mask=slice(None)):
+    """Steady-state output ``G_d(z_k) E_k`` on the lines of ``mask`` (modal form, O(F n (p + m_e)))."""
     mu, phi = np.linalg.eig(model.a_d)
     ch = model.c_d @ phi
     bh = np.linalg.solve(phi, model.b_d.astype(complex))
     Ephys = data.E_physical[mask]
     z = data.z[mask]
     X = (bh @ Ephys.T).T / (z[:, None] - mu[None, :])             # (F, n)
-    Yh = X @ ch.T + Ephys @ model.d_d.T
-    v = osel.relative_model_error(data.Y[mask], Yh)
-    return v
+    return X @ ch.T + Ephys @ model.d_d.T
+
+
+def _fast_error_and_poles(model, data, mask):
+    """V(n) over ``mask`` (spec §3 shortcut in modal form)."""
+    return osel.relative_model_error(data.Y[mask], _model_output(model, data, mask))
 
 
 @dataclass(frozen=True)
@@ -366,7 +403,26 @@ class AutoResult:
     ----------
     information_criterion : ident.order_selection.InformationCriterion
     selected_order : int
-        ``argmin I`` over the stable orders.
+        The order of the model: ``argmin I`` over the stable orders, restricted to the
+        orders with consistent coefficients when ``order_selection='consistent'``.
+    ic_order : int
+        Plain ``argmin I`` over the stable orders (seed Eq. 8).
+    coefficient_spread : ndarray, shape (q,)
+        ``rho(n)`` per order of the information criterion (NaN where not computed).
+    consistent : bool ndarray, shape (q,)
+        Orders that passed the coefficient gate (all False if it was not applied).
+    order_selection : str
+        ``'consistent'`` or ``'ic'``: how ``selected_order`` was chosen.
+    final : {'reduced', 'full'}
+        Which model is the answer (:attr:`final_model`): the reduced one, unless the
+        reduction raised the coefficient spread of the model it came from (then the full
+        model at ``mdi_order``).
+    final_spread : dict
+        ``{'full': rho, 'reduced': rho}`` behind that choice (NaN when not computed).
+    detection : ndarray, shape (n_modes,)
+        Detection statistic of each MDI mode (:func:`ident.mdi.modal_detection`): its energy
+        over the residual's fluctuation in its bandwidth; below ``detection_sigma`` a mode
+        is not physical.
     stabilisation : ident.stabilisation.StabilisationDiagram
     mdi_order : int
         Order at which MDI and reduction were applied (``reduce_at`` or ``selected_order``).
@@ -417,6 +473,18 @@ class AutoResult:
     options: AutoOptions
     groups: tuple = ()
     stab_class_at_mdi_order: tuple = ()
+    ic_order: int = 0
+    coefficient_spread: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    consistent: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    order_selection: str = "ic"
+    detection: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    final: str = "full"
+    final_spread: dict = field(default_factory=dict)
+
+    @property
+    def final_model(self):
+        """The answer: ``reduced`` or ``full_model`` as :attr:`final` says."""
+        return self.reduced if self.final == "reduced" else self.full_model
     timings_s: dict = field(default_factory=dict)
     models: dict = field(default_factory=dict, repr=False)
 
@@ -438,6 +506,8 @@ class AutoResult:
                 "stabilisation": (self.stab_class_at_mdi_order[k]
                                   if self.stab_class_at_mdi_order else None),
                 "candidate": bool(self.candidates[k]),
+                "detection": (float(self.detection[k]) if self.detection.size
+                              and np.isfinite(self.detection[k]) else None),
                 "physical": bool(self.physical[k]),
             })
         return rows
@@ -459,13 +529,35 @@ class AutoResult:
         if self.reduced is not None:
             red = {"order": int(self.reduced.order), "poles": poles_of(self.reduced),
                    "coefficients": self.coefficients.get("reduced")}
+        final = self.final_model
+        md = self.modal_dominancy
+        final_poles = poles_of(final)
+        for pl in final_poles:  # classification of the same pole at the MDI order
+            k = int(np.argmin(np.abs(md.frequency_hz - pl["frequency_hz"]))) if md.frequency_hz.size else -1
+            same = k >= 0 and abs(md.frequency_hz[k] - pl["frequency_hz"]) <= 1e-6 * pl["frequency_hz"]
+            pl["physical"] = bool(same and (self.physical[k] or not md.in_band[k]))
+        modes = [{"frequency_hz": r["frequency_hz"], "damping_ratio": r["damping_ratio"],
+                  "mdi_h2": r["mdi_h2"], "stabilisation": r["stabilisation"]}
+                 for r in self.mdi_table() if r["physical"]]
         return {
+            "order": int(final.order),
+            "final": self.final,
+            "modes": modes,
+            "poles": final_poles,
+            "coefficients": self.coefficients.get(self.final if self.final == "reduced" else "full"),
             "information_criterion": self.information_criterion.to_list(),
             "ic_band": (self.information_criterion.band
                         if isinstance(self.information_criterion.band, str)
                         else list(self.information_criterion.band)),
             "criterion": self.information_criterion.criterion,
             "selected_order": int(self.selected_order),
+            "ic_order": int(self.ic_order),
+            "order_selection": self.order_selection,
+            "coefficient_spread": [
+                {"order": int(n), "spread": fin(r), "consistent": bool(c)}
+                for n, r, c in zip(self.information_criterion.orders,
+                                   self.coefficient_spread, self.consistent)]
+            if self.coefficient_spread.size else [],
             "stabilisation": self.stabilisation.to_list(),
             "mdi_order": int(self.mdi_order),
             "mdi_norm": self.options.mdi_norm,
@@ -526,6 +618,7 @@ def confidence_statement(separation_ratio: float, n_physical: int, disagreements
     vetoed = disagreements.get("vetoed_not_stabilised", [])
     rescued = disagreements.get("rescued_by_stabilisation", [])
     drop_fs = disagreements.get("dropped_fully_stable", [])
+    below = disagreements.get("below_residual", [])
     steps = ["ambiguous", "moderate", "clear"]
     if (kept_ns or drop_fs or vetoed or rescued) and level != "ambiguous":
         level = steps[steps.index(level) - 1]
@@ -538,6 +631,10 @@ def confidence_statement(separation_ratio: float, n_physical: int, disagreements
     if vetoed:
         parts.append("Above the MDI threshold but dropped because not stabilised in frequency: "
                      + ", ".join(f"{f:.2f} Hz" for f in vetoed) + ".")
+    if below:
+        parts.append("Dropped because they do not stand out of the model's residual in their "
+                     "bandwidth (not detectable above noise or model error): "
+                     + ", ".join(f"{f:.2f} Hz" for f in below) + ".")
     if drop_fs:
         parts.append("Dropped although fully stable (possibly genuine weak modes; consider "
                      "top_n or a manual threshold): " + ", ".join(f"{f:.2f} Hz" for f in drop_fs) + ".")
@@ -557,7 +654,8 @@ def confidence_statement(separation_ratio: float, n_physical: int, disagreements
             "fallback_stabilisation": bool(disagreements.get("fallback", False)),
             "rescued_by_stabilisation": [float(f) for f in rescued],
             "excluded_out_of_band": int(disagreements.get("excluded_out_of_band", 0)),
-            "excluded_unstable": int(disagreements.get("excluded_unstable", 0))}
+            "excluded_unstable": int(disagreements.get("excluded_unstable", 0)),
+            "below_residual": [float(f) for f in below]}
 
 
 def _restrict_diagram(diagram, band):
@@ -592,7 +690,8 @@ def _band_of_interest(data, options):
 
 def identify_auto(data, options: AutoOptions | dict | None = None, *,
                   orders: Sequence[int] = range(2, 61), reduce_at: int | None = None,
-                  progress=None, coefficients: Callable | None = None) -> AutoResult:
+                  progress=None, coefficients: Callable | None = None,
+                  spread: Callable | None = None) -> AutoResult:
     """Identify a model and its physical modes without reading a stabilisation diagram.
 
     Parameters
@@ -610,6 +709,10 @@ def identify_auto(data, options: AutoOptions | dict | None = None, *,
         ``coefficients(model) -> dict`` (JSON-able summary of the nonlinear coefficients,
         e.g. built on :func:`ident.coefficients.nonlinear_coefficients`); called for the
         selected, full and reduced models.
+    spread : callable, optional
+        ``spread(model) -> rho`` (:func:`ident.coefficients.spread_function`): the coefficient
+        consistency used by ``order_selection='consistent'``; without it the order is
+        ``argmin I``.
 
     Returns
     -------
@@ -669,6 +772,17 @@ def identify_auto(data, options: AutoOptions | dict | None = None, *,
         band=ic_band, criterion=options.criterion, n_outputs=data.n_outputs,
         n_extended_inputs=data.n_extended_inputs, d_zero=options.d_zero)
     n_sel = ic.selected_order
+    rho = np.full(len(orders), np.nan)
+    consistent = np.zeros(len(orders), bool)
+    how = "ic"
+    if spread is not None and options.order_selection == "consistent":
+        for k, n in enumerate(orders):
+            if ic.stable[k]:
+                rho[k] = spread(models[n])
+        if np.any(np.isfinite(rho)):
+            n_sel, consistent = osel.select_order_consistent(
+                orders, ic.value, ic.stable, rho, options.spread_factor)
+            how = "consistent"
 
     # stabilisation over the sweep, modes of each order (one per pair, not at Nyquist)
     fl, zl, sl = [], [], []
@@ -759,12 +873,25 @@ def identify_auto(data, options: AutoOptions | dict | None = None, *,
                 and not (thr.separation_ratio >= options.clear_ratio))
     rescued = np.zeros(values.size, bool)
     if options.fallback == "stabilisation" and thr.method == "largest_gap" and cand.any():
-        floor = options.fallback_rel_floor * float(np.max(values[cand]))
-        ok_cls = (cls_arr != "new") & (cls_arr != "none") if fallback else (cls_arr == "stable")
-        rescued = cand & ~physical & ok_cls & (values >= floor)
+        rescued = cand & ~physical & (cls_arr == "stable")
+        if fallback:
+            floor = options.fallback_rel_floor * float(np.max(values[cand]))
+            rescued |= (cand & ~physical & (cls_arr != "new") & (cls_arr != "none")
+                        & (values >= floor))
         physical |= rescued
     vetoed = physical & veto
     physical &= ~veto
+    # detectability: in its own bandwidth a mode must stand out of the model's residual
+    # (spec §8.5); nested models of one SVD keep noise-fitting poles "stable" across
+    # orders, so stability alone does not make a mode
+    fac = np.where(np.abs(mu - 1) > 1e-12, lam / np.where(np.abs(mu - 1) > 1e-12, mu - 1, 1),
+                   full.sample_rate_hz)
+    y_model = _model_output(full, data)
+    detection = mdi_mod.modal_detection(mu, ch, bh / fac[:, None], data.E_physical, data.z,
+                                        data.Y, y_model, data.frequencies_hz, md.members,
+                                        md.frequency_hz, md.damping_ratio)
+    undetectable = physical & ~(detection >= options.detection_sigma)
+    physical &= ~undetectable
     timings["mdi"] = time.perf_counter() - t3
 
     # confidence
@@ -773,10 +900,11 @@ def identify_auto(data, options: AutoOptions | dict | None = None, *,
         "kept_not_stabilised": sorted(md.frequency_hz[physical & (cls_arr == "new")].tolist()),
         "vetoed_not_stabilised": sorted(md.frequency_hz[vetoed].tolist()),
         "rescued_by_stabilisation": sorted(md.frequency_hz[rescued & physical].tolist()),
-        "dropped_fully_stable": sorted(md.frequency_hz[~physical & inb & md.stable
+        "dropped_fully_stable": sorted(md.frequency_hz[~physical & inb & md.stable & ~undetectable
                                                        & (cls_arr == "stable")].tolist()),
         "excluded_out_of_band": int(np.sum(~inb)),
         "excluded_unstable": int(np.sum(inb & ~md.stable)),
+        "below_residual": sorted(md.frequency_hz[undetectable].tolist()),
     }
     disagree["fallback"] = bool(fallback)
     kept_v, drop_v = values[physical & cand], values[~physical & cand]
@@ -799,6 +927,9 @@ def identify_auto(data, options: AutoOptions | dict | None = None, *,
     keep_modes = physical.copy()
     if options.out_of_band == "keep":
         keep_modes |= ~md.in_band & md.stable & ~nyq
+    elif options.out_of_band == "stabilised":
+        keep_modes |= (~md.in_band & md.stable & ~nyq & (cls_arr != "new")
+                       & (cls_arr != "none") & (detection >= options.detection_sigma))
     if keep_modes.any() and not keep_modes.all():
         keep_lam = np.concatenate([lam[list(md.members[i])] for i in np.flatnonzero(keep_modes)])
         keep_mu = np.exp(keep_lam / full.sample_rate_hz)
@@ -810,6 +941,16 @@ def identify_auto(data, options: AutoOptions | dict | None = None, *,
             keep_mask[int(np.argmin(dist))] = True
         reduced = reduce_model(full, data, keep_mask, d_zero=options.d_zero,
                                weighted=options.weighted)
+    # the answer: the reduced model, unless the reduction made the coefficients less
+    # consistent than the model it came from (then removing those poles cost information)
+    final = "full"
+    rho_full = rho_reduced = float("nan")
+    if reduced is not None:
+        final = "reduced"
+        if spread is not None:
+            rho_full, rho_reduced = spread(full), spread(reduced)
+            if np.isfinite(rho_full) and not rho_reduced <= rho_full:
+                final = "full"
     timings["reduction"] = time.perf_counter() - t4
 
     coefs: dict = {}
@@ -827,7 +968,10 @@ def identify_auto(data, options: AutoOptions | dict | None = None, *,
                       threshold=thr, separation_ratio=thr.separation_ratio, confidence=conf,
                       model=models[n_sel], full_model=full, reduced=reduced, coefficients=coefs,
                       options=options, groups=tuple(tuple(g) for g in groups),
-                      stab_class_at_mdi_order=tuple(cls), timings_s=timings, models=models)
+                      stab_class_at_mdi_order=tuple(cls), timings_s=timings, models=models,
+                      ic_order=ic.selected_order, coefficient_spread=rho,
+                      consistent=consistent, order_selection=how, detection=detection,
+                      final=final, final_spread={"full": rho_full, "reduced": rho_reduced})
 
 
 # --------------------------------------------------------------------------------------
@@ -909,9 +1053,13 @@ def run_cli(args, session):
                                          driving_point=cfg.driving_points or None)
         return [s.to_dict() for s in summarize_coefficients(spectra)]
 
+    from ident.coefficients import spread_function
+
     progress = Progress(len(orders), "FNSI orders", enabled=not args.quiet and args.json_out != "-")
+    spread = spread_function(session.data, cfg.nonlinearities,
+                             driving_point=cfg.driving_points or None)
     res = identify_auto(session.data, options, orders=orders, reduce_at=args.reduce_at,
-                        progress=progress, coefficients=coef)
+                        progress=progress, coefficients=coef, spread=spread)
     session.timings_s["auto"] = time.perf_counter() - t0
     out = {"input": str(session.input.path), "config": cfg.file,
            "outputs": list(session.data.output_names), "band_hz": list(session.data.band_hz),

@@ -160,7 +160,8 @@ def prepare_session(args: argparse.Namespace) -> IdentSession:
             output_quantity=quantity, output_names=inp.output_channels,
             input_names=inp.input_channels, excited_lines=inp.excited_lines,
             highpass_hz=cfg.highpass_hz, steady_state_tolerance=cfg.steady_state_tolerance,
-            time_base=cfg.time_base, bilinear_period_s=cfg.bilinear_period_s)
+            time_base=cfg.time_base, bilinear_period_s=cfg.bilinear_period_s,
+            basis_oversample=cfg.basis_oversample)
     t2 = time.perf_counter()
     weighted = cfg.weighting != "none"
     if cfg.weighting == "noise" and data.noise_cov is None:
@@ -232,7 +233,8 @@ def result_to_json(session: IdentSession, decomp: SubspaceDecomposition, model: 
     }
 
 
-def _print_summary(res: dict, out=sys.stdout) -> None:
+def _print_summary(res: dict, out=None) -> None:
+    out = out or sys.stdout
     print(f"order {res['order']} (block rows {res['block_rows']}, "
           f"{'weighted' if res['weighted'] else 'unweighted'}, {res['n_lines']} lines, "
           f"relative model error {res['relative_model_error']:.3g})", file=out)

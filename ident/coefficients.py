@@ -23,7 +23,7 @@ from ident.fnsi import StateSpaceModel, frf
 from ident.periodic import FrequencyData
 
 __all__ = ["CoefficientSpectra", "CoefficientSummary", "nonlinear_coefficients",
-           "summarize_coefficients"]
+           "summarize_coefficients", "coefficient_spread", "spread_function"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -64,7 +64,8 @@ class CoefficientSummary:
     ----------
     name : str
     mean_real, std_real : float
-        Mean and standard deviation of ``Re c_a(w)`` over the excited lines.
+        Mean and standard deviation of ``Re c_a(w)`` over the excited lines, leaving out the
+        antiresonances of the denominator (see :func:`summarize_coefficients`).
     log10_re_im : float
         ``log10 |mean Re / mean Im|`` (> 2 good, < 1 unreliable).
     ls_value : float
@@ -75,6 +76,9 @@ class CoefficientSummary:
     ls_error_percent : float or None
     n_lines : int
         Excited lines used.
+    n_antiresonance_lines : int
+        Excited lines left out of ``mean_real``, ``std_real`` and ``log10_re_im`` because
+        ``|den|`` is below ``antiresonance_floor`` times its median there.
     band : dict
         The same statistics over every processed line (diagnostic only: above the excitation
         band the identified ``G_p`` is an extrapolation).
@@ -89,13 +93,15 @@ class CoefficientSummary:
     ls_error_percent: float | None
     n_lines: int
     band: dict
+    n_antiresonance_lines: int = 0
 
     def to_dict(self) -> dict:
         """JSON-able dict."""
         return {"name": self.name, "mean_real": self.mean_real, "std_real": self.std_real,
                 "log10_re_im": self.log10_re_im, "ls_value": self.ls_value,
                 "error_percent": self.error_percent, "ls_error_percent": self.ls_error_percent,
-                "n_lines": self.n_lines, "band": dict(self.band)}
+                "n_lines": self.n_lines, "n_antiresonance_lines": self.n_antiresonance_lines,
+                "band": dict(self.band)}
 
 
 def _resolve_driving_points(driving_point, input_names: Sequence[str],
@@ -202,11 +208,11 @@ def nonlinear_coefficients(model: StateSpaceModel, data: FrequencyData | None,
                               denominator=den, excited=excited, truth=tuple(truth))
 
 
-def _stats(values, num, den, eps):
-    """mean Re, std Re, log10|Re/Im|, LS constant over the given lines."""
+def _stats(values, num, den, eps, keep=None):
+    """mean Re, std Re, log10|Re/Im| (over ``keep``), LS constant over the given lines."""
     if values.size == 0:
         return float("nan"), float("nan"), float("nan"), float("nan")
-    finite = np.isfinite(values)
+    finite = np.isfinite(values) & (True if keep is None else keep)
     v = values[finite]
     mean_re = float(np.mean(v.real)) if v.size else float("nan")
     std_re = float(np.std(v.real)) if v.size else float("nan")
@@ -222,7 +228,8 @@ def _stats(values, num, den, eps):
 
 def summarize_coefficients(spectra: CoefficientSpectra, *,
                            truth: Mapping[str, float] | None = None,
-                           eps: float = 1e-6) -> list[CoefficientSummary]:
+                           eps: float = 1e-6,
+                           antiresonance_floor: float = 0.1) -> list[CoefficientSummary]:
     """Per-coefficient statistics over the excited lines (headline) and the whole band.
 
     Parameters
@@ -232,6 +239,14 @@ def summarize_coefficients(spectra: CoefficientSpectra, *,
         Known values; overrides ``spectra.truth``.
     eps : float
         Lines with ``|den| < eps max|den|`` are left out of the LS constant (spec §2.3).
+    antiresonance_floor : float
+        Excited lines with ``|den| < antiresonance_floor * median |den|`` (antiresonances of
+        the denominator ``L_a^T G_p``, where ``c_a = num/den`` divides the numerator's error
+        by almost nothing) are left out of the mean, std and ``log10|Re/Im|``; 0 keeps every
+        line (the seed's Table 2). Default 0.1 (20 dB below the median): with 40 dB output
+        noise, a cubic spring at the free end of an 8-DOF chain read from its driving point
+        had a plain mean off by 26-39 % against 0.2 % without those lines, while noise-free
+        results moved by < 0.01 % (bench/robustness.py, docs/ident.md).
 
     Returns
     -------
@@ -252,13 +267,84 @@ def summarize_coefficients(spectra: CoefficientSpectra, *,
         elif a < len(spectra.truth) and spectra.truth[a] is not None:
             t = float(spectra.truth[a])
         v, nu, de = spectra.values[:, a], spectra.numerator[:, :, a], spectra.denominator[:, :, a]
-        mr, sr, lr, ls = _stats(v[exc], nu[exc], de[exc], eps)
+        size = np.sqrt(np.sum(np.abs(de[exc]) ** 2, axis=1))        # (F_exc,)
+        keep = size >= antiresonance_floor * (np.median(size) if size.size else 0.0)
+        mr, sr, lr, ls = _stats(v[exc], nu[exc], de[exc], eps, keep=keep)
         bm, bs, bl, bls = _stats(v, nu, de, eps)
         err = 100.0 * (mr - t) / t if t not in (None, 0.0) else None
         lerr = 100.0 * (ls - t) / t if t not in (None, 0.0) else None
         out.append(CoefficientSummary(
             name=name, mean_real=mr, std_real=sr, log10_re_im=lr, ls_value=ls,
             error_percent=err, ls_error_percent=lerr, n_lines=int(exc.sum()),
+            n_antiresonance_lines=int(np.sum(~keep)),
             band={"mean_real": bm, "std_real": bs, "log10_re_im": bl, "ls_value": bls,
                   "n_lines": int(v.size)}))
     return out
+
+
+def coefficient_spread(spectra: CoefficientSpectra) -> np.ndarray:
+    """Relative departure of each ``c_a(w)`` from a real constant over the excited lines.
+
+    Parameters
+    ----------
+    spectra : CoefficientSpectra
+
+    Returns
+    -------
+    ndarray, shape (s,)
+        ``rho_a = sqrt(sum_k |num_k + c den_k|^2 / (c^2 sum_k |den_k|^2))`` with ``c`` the
+        real part of the least-squares constant; ``inf`` when ``c`` vanishes.
+
+    Notes
+    -----
+    A physically consistent model has ``G_a(r_i, w) = -c_a L_a^T G_p(w)`` with a real,
+    frequency-independent ``c_a`` (spec §2.3), so ``rho_a = 0``; the seed judges orders by the
+    same property (flat ``Re c_a``, large ``|Re/Im|``; its Fig. 6 and Table 2). The residual is
+    weighted by ``|den|`` like the least-squares constant, so the antiresonances of the
+    denominator (where ``c_a(w)`` has genuine peaks) do not dominate. On the simulated
+    SmallSat, ``rho`` tracked the coefficient error: ~1e-3 at orders within 0.1 %, ~1e-2 at
+    ~1 %, > 0.1 at > 10 % (docs/robust.md).
+    """
+    exc = np.asarray(spectra.excited, bool)
+    out = np.full(len(spectra.names), np.inf)
+    for a in range(len(spectra.names)):
+        num = spectra.numerator[exc, :, a].reshape(-1)
+        den = spectra.denominator[exc, :, a].reshape(-1)
+        ok = np.isfinite(num) & np.isfinite(den)
+        num, den = num[ok], den[ok]
+        d2 = float(np.sum(np.abs(den) ** 2))
+        if d2 <= 0:
+            continue
+        c = float(np.real(-np.sum(den.conj() * num) / d2))
+        if c != 0 and np.isfinite(c):
+            out[a] = float(np.sqrt(np.sum(np.abs(num + c * den) ** 2) / (c * c * d2)))
+    return out
+
+
+def spread_function(data: FrequencyData, basis: Sequence[Nonlinearity], *,
+                    driving_point: str | Mapping[str, str | None] | None):
+    """``model -> rho`` for order selection, or None when ``c_a`` cannot be computed.
+
+    ``rho`` is the geometric mean over the basis columns of :func:`coefficient_spread`,
+    evaluated on the excited lines of ``data``. None when there is no basis, no driving
+    point, or a channel of some ``L_a`` is not measured (spec §2.3).
+    """
+    basis = tuple(basis)
+    if not basis or driving_point is None or not np.any(data.excited):
+        return None
+    f_exc = data.frequencies_hz[np.asarray(data.excited, bool)]
+    try:  # validate the channels once
+        L_names = [nl.location_vector(list(data.output_names)) for nl in basis]
+        del L_names
+        _resolve_driving_points(driving_point, data.input_names, data.output_names)
+    except (ChannelError, NotIdentifiableError):
+        return None
+
+    def rho(model: StateSpaceModel) -> float:
+        sp = nonlinear_coefficients(model, None, basis, driving_point=driving_point,
+                                    frequencies_hz=f_exc)
+        r = coefficient_spread(sp)
+        with np.errstate(divide="ignore"):
+            return float(np.exp(np.mean(np.log(r)))) if np.all(r > 0) else 0.0
+
+    return rho

@@ -22,6 +22,7 @@ field and the fix; unknown keys are rejected (typos). Example (3-DOF chain, rela
     d_zero: null                 # default false: estimate D (see IdentConfig.d_zero_for)
     weighting: auto              # auto | none | noise
     time_base: zoh               # zoh (spec §1.5) | bilinear (spec §1.6, band-limited data)
+    basis_oversample: 8          # basis functions on an 8x band-limited interpolation (§8.4)
 
 Other packages may add top-level sections through :data:`EXTRA_SECTIONS` (the robust
 pipeline adds its own keys there); their parsed values land in ``IdentConfig.extra``.
@@ -74,6 +75,7 @@ class IdentConfig:
     steady_state_tolerance: float = 0.05
     time_base: str = "zoh"
     bilinear_period_s: float | None = None
+    basis_oversample: int = 8
     file: str | None = None
     extra: dict = field(default_factory=dict)
 
@@ -215,6 +217,7 @@ def parse_ident_config(data: Any, *, file: str | None = None) -> IdentConfig:
             steady_state_tolerance=sec.number("steady_state_tolerance", 0.05, positive=True),
             time_base=sec.string("time_base", "zoh", choices=("zoh", "bilinear")),
             bilinear_period_s=sec.number("bilinear_period_s", None, positive=True),
+            basis_oversample=sec.integer("basis_oversample", 8, minimum=1),
             file=file,
             extra={k: parser(sec, k) for k, parser in EXTRA_SECTIONS.items() if sec.has(k)})
         sec.finish()

@@ -25,7 +25,8 @@ from ident.errors import IdentError
 from ident.periodic import FrequencyData, prepare_frequency_data  # noqa: F401  (re-export)
 
 __all__ = ["FrequencyData", "prepare_frequency_data", "SubspaceDecomposition", "Poles",
-           "StateSpaceModel", "subspace_decomposition", "default_block_rows", "model_at_order",
+           "StateSpaceModel", "subspace_decomposition", "default_block_rows", "state_matrices",
+           "model_at_order",
            "models_for_orders", "estimate_bd", "make_model", "discrete_to_continuous",
            "compute_poles", "bilinear_to_continuous", "steady_state_output",
            "transfer_discrete", "frf", "underlying_linear_frf"]
@@ -191,6 +192,12 @@ class StateSpaceModel:
 # ---------------------------------------------------------------------------- helpers
 #: Eigenvector matrices with a larger condition number use the direct (solve) fallback.
 _MODAL_COND_LIMIT = 1e8
+#: The full noise covariance (cross-channel terms) is inverted only when the periods give at
+#: least this many degrees of freedom per output (an inverse Wishart estimate is unbiased
+#: only for P - 1 > p + 1 and very noisy near it); otherwise per-channel variances are used.
+_FULL_COV_PERIODS_PER_OUTPUT = 2
+#: Half-width (lines) of the moving average of the per-channel noise variances.
+_NOISE_SMOOTHING_LINES = 8
 #: Lines per chunk when accumulating weighted normal equations (bounds memory).
 _CHUNK = 256
 
@@ -209,10 +216,13 @@ def _inverse_covariance(data: FrequencyData, weighted: bool) -> np.ndarray | Non
     """Per-line weight ``Q_k = Sigma_Y(k)^{-1}``: shape (F, p, p), or (F, p) real when diagonal,
     or None (identity).
 
-    The sample covariance of ``P`` periods has rank ``<= P - 1``; when ``P - 1 < p`` only its
-    diagonal (per-channel variances) is used. Eigenvalues are floored at ``1e-8`` times the
-    mean variance so that lines with (numerically) no noise do not dominate. Cached on the
-    (immutable) data object.
+    The sample covariance of ``P`` periods has ``P - 1`` degrees of freedom; unless
+    ``P - 1 >= 2 p`` only its diagonal (per-channel variances) is used, averaged over
+    +-8 neighbouring lines (the noise spectrum is smooth; a 5-period estimate per line
+    scatters by +-45 % and weighting by its inverse raised the coefficient error of a
+    noisy 5-output chain from 1-3 % to 12-25 %, docs/ident.md). Variances are floored at
+    ``1e-8`` times their mean so that lines with (numerically) no noise do not dominate.
+    Cached on the (immutable) data object.
     """
     cov = data.noise_cov
     if not weighted or cov is None:
@@ -228,12 +238,36 @@ def _inverse_covariance(data: FrequencyData, weighted: bool) -> np.ndarray | Non
         floor = 1e-8 * mean_var
         p = cov.shape[1]
         off = cov - np.einsum("ki,ij->kij", np.einsum("kii->ki", cov), np.eye(p))
-        if data.n_periods - 1 < p or not np.any(off):
-            q = 1.0 / (var + floor)  # diagonal, stored as (F, p)
+        if data.n_periods - 1 < _FULL_COV_PERIODS_PER_OUTPUT * p or not np.any(off):
+            # per-channel variances, smoothed over neighbouring lines: from P periods each
+            # line's estimate has only P - 1 degrees of freedom and its inverse would weight
+            # the lines at random (the noise spectrum itself is smooth)
+            q = 1.0 / (_smooth_lines(var, data.lines, _NOISE_SMOOTHING_LINES) + floor)
         else:
             q = np.linalg.inv(cov + floor * np.eye(p))
     cache["inv_cov"] = q
     return q
+
+
+def _smooth_lines(values: np.ndarray, lines: np.ndarray, half_width: int) -> np.ndarray:
+    """Moving average over +-``half_width`` neighbouring lines, per realization block.
+
+    ``values`` has shape (F, ...); blocks of stacked realizations (``lines`` restarting) are
+    smoothed separately; the window shrinks at the block edges.
+    """
+    if half_width <= 0 or values.shape[0] < 2:
+        return values
+    starts = np.flatnonzero(np.r_[True, np.diff(lines) <= 0])
+    ends = np.r_[starts[1:], lines.size]
+    out = np.empty_like(values)
+    for a, b in zip(starts, ends):
+        v = values[a:b]
+        c = np.cumsum(np.concatenate([np.zeros((1,) + v.shape[1:]), v]), axis=0)
+        idx = np.arange(b - a)
+        lo = np.maximum(idx - half_width, 0)
+        hi = np.minimum(idx + half_width + 1, b - a)
+        out[a:b] = (c[hi] - c[lo]) / (hi - lo).reshape((-1,) + (1,) * (v.ndim - 1))
+    return out
 
 
 def _cov_for_svd(data: FrequencyData, weighted: bool) -> np.ndarray | None:
@@ -248,9 +282,11 @@ def _cov_for_svd(data: FrequencyData, weighted: bool) -> np.ndarray | None:
 def default_block_rows(n_outputs: int, max_order: int, n_lines: int, n_extended_inputs: int) -> int:
     """Block rows ``i`` from ``p`` and ``n_max`` (spec §1.3 size rules, §8.2).
 
-    ``i = max(ceil(n_max / p) + 1, ceil(max(3 n_max, 120) / p))``: few channels need many block
-    rows (spec §8.2: 3 outputs needed i = 60, 39 outputs worked with i = 5-20), capped by the
-    QR size rule ``2F >= i (m_e + p)``.
+    ``i = max(ceil(n_max / p) + 1, ceil(max(3 n_max, 120) / p), 20)``: few channels need many
+    block rows (spec §8.2: 3 outputs needed i = 60), and at least 20 (the spec's default):
+    with 39 SmallSat outputs, i = 5 made 27-39 of the 59 orders unstable and held 9 of the
+    11 modes at best, i = 20 left 8 unstable and held 10 (docs/robust.md). Capped by the QR
+    size rule ``2F >= i (m_e + p)``.
 
     Parameters
     ----------
@@ -263,7 +299,7 @@ def default_block_rows(n_outputs: int, max_order: int, n_lines: int, n_extended_
     """
     p = max(int(n_outputs), 1)
     need = -(-int(max_order) // p) + 1
-    want = -(-max(3 * int(max_order), 120) // p)
+    want = max(-(-max(3 * int(max_order), 120) // p), 20)
     cap = (2 * int(n_lines)) // (int(n_extended_inputs) + p)
     return int(max(need, min(want, cap), 2))
 
@@ -360,6 +396,39 @@ def subspace_decomposition(data: FrequencyData, *, max_order: int, block_rows: i
                                  timings_s={"qr": t1 - t0, "svd": t2 - t1})
 
 
+def state_matrices(decomp: SubspaceDecomposition, order: int) -> tuple[np.ndarray, np.ndarray]:
+    """``A_d`` and ``C_d`` of one order by shift invariance (spec §1.3).
+
+    Parameters
+    ----------
+    decomp : SubspaceDecomposition
+    order : int
+        ``n <= decomp.max_order``.
+
+    Returns
+    -------
+    a_d : ndarray, shape (n, n)
+    c_d : ndarray, shape (p, n)
+
+    Notes
+    -----
+    ``C = Gamma[0:p]``, ``A = Gamma[0:(i-1)p]^+ Gamma[p:ip]`` (least squares), each block row
+    whitened by ``decomp.shift_weight`` when the decomposition is weighted.
+    """
+    n = int(order)
+    p = decomp.n_outputs
+    G = decomp.observability[:, :n]
+    c_d = G[:p].copy()
+    if decomp.shift_weight is None:
+        a_d = np.linalg.lstsq(G[:-p], G[p:], rcond=None)[0]
+    else:  # weighted shift invariance: every block row whitened by Sigma_mean^{-1/2}
+        W = decomp.shift_weight
+        i = decomp.block_rows
+        Gw = (W @ G.reshape(i, p, n)).reshape(i * p, n)
+        a_d = np.linalg.lstsq(Gw[:-p], Gw[p:], rcond=None)[0]
+    return a_d, c_d
+
+
 def model_at_order(decomp: SubspaceDecomposition, data: FrequencyData, order: int, *,
                    d_zero: bool = False) -> StateSpaceModel:
     """The model of order ``n`` from the first ``n`` singular directions.
@@ -389,16 +458,7 @@ def model_at_order(decomp: SubspaceDecomposition, data: FrequencyData, order: in
     if not 1 <= n <= decomp.max_order:
         raise IdentError(f"order {n} is outside 1..{decomp.max_order} (max order of this "
                          "decomposition)")
-    p = decomp.n_outputs
-    G = decomp.observability[:, :n]
-    c_d = G[:p].copy()
-    if decomp.shift_weight is None:
-        a_d = np.linalg.lstsq(G[:-p], G[p:], rcond=None)[0]
-    else:  # weighted shift invariance: every block row whitened by Sigma_mean^{-1/2}
-        W = decomp.shift_weight
-        i = decomp.block_rows
-        Gw = (W @ G.reshape(i, p, n)).reshape(i * p, n)
-        a_d = np.linalg.lstsq(Gw[:-p], Gw[p:], rcond=None)[0]
+    a_d, c_d = state_matrices(decomp, n)
     modal = _modal(a_d)
     b_d, d_d = _estimate_bd(a_d, c_d, data, d_zero=d_zero, weighted=decomp.weighted, modal=modal)
     return make_model(a_d, b_d, c_d, d_d, sample_rate_hz=data.sample_rate_hz,

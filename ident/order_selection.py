@@ -12,10 +12,14 @@ with ``F = |K_V|`` the number of lines where V is evaluated. Unstable models are
 
 Options
 -------
-``criterion='seed'`` (default) is Eq. 8. ``criterion='aic'`` (not the seed's formula) counts
-parameters instead of states: ``I = V (1 + 2 n_theta / N_r)`` with
+``criterion='seed'`` is Eq. 8. The others count parameters instead of states, with
 ``n_theta = n (m_e + p) + p m_e`` (``p m_e`` dropped when ``D = 0``) and ``N_r = 2 F p`` real
-residuals.
+residuals: ``criterion='aic'``, ``I = V (1 + 2 n_theta / N_r)``; ``criterion='mdl'``
+(Rissanen's minimum description length, the default of :mod:`ident.auto`),
+``I = V exp(n_theta ln(N_r) / N_r)``, i.e. ``ln I = ln V + n_theta ln(N_r) / N_r``. Eq. 8's
+penalty is 3 % at n = 60 and F = 2000 (spec §3), so wherever V has reached its floor (noise,
+model error) its minimum falls at an arbitrary order; MDL's grows with the data and is
+consistent.
 
 ``band='auto'`` (default) evaluates V over the excited lines when the outputs are few
 (``p <= FEW_OUTPUTS``) and over all processed lines otherwise: with few outputs, the extra
@@ -33,8 +37,8 @@ import numpy as np
 
 from ident.errors import IdentError
 
-Criterion = Literal["seed", "aic"]
-CRITERIA: tuple[str, ...] = ("seed", "aic")
+Criterion = Literal["seed", "aic", "mdl"]
+CRITERIA: tuple[str, ...] = ("seed", "aic", "mdl")
 IcBand = Literal["auto", "processed", "excited"]
 IC_BANDS: tuple[str, ...] = ("auto", "processed", "excited")
 #: ``band='auto'`` uses the excited lines when there are at most this many outputs (spec §8.3:
@@ -42,8 +46,8 @@ IC_BANDS: tuple[str, ...] = ("auto", "processed", "excited")
 FEW_OUTPUTS = 8
 
 __all__ = ["InformationCriterion", "relative_model_error", "information_criterion",
-           "parameter_count", "ic_line_mask", "select_order", "CRITERIA", "IC_BANDS",
-           "FEW_OUTPUTS"]
+           "parameter_count", "ic_line_mask", "select_order", "select_order_consistent",
+           "CRITERIA", "IC_BANDS", "FEW_OUTPUTS"]
 
 
 def relative_model_error(Y, Y_hat, mask=None) -> float:
@@ -89,11 +93,11 @@ def information_criterion(v, order, n_lines: int, *, criterion: Criterion = "see
         ``n`` (same shape as ``v``).
     n_lines : int
         ``F``, lines in the error.
-    criterion : {'seed', 'aic'}
+    criterion : {'seed', 'aic', 'mdl'}
     n_outputs, n_extended_inputs : int
-        Needed by ``'aic'``.
+        Needed by ``'aic'`` and ``'mdl'``.
     d_zero : bool
-        ``'aic'`` only: D not estimated.
+        ``'aic'`` and ``'mdl'``: D not estimated.
 
     Returns
     -------
@@ -106,9 +110,12 @@ def information_criterion(v, order, n_lines: int, *, criterion: Criterion = "see
     if criterion == "seed":
         return v * (1.0 + n / n_lines)
     if n_outputs is None or n_extended_inputs is None:
-        raise IdentError("criterion='aic' needs n_outputs and n_extended_inputs")
+        raise IdentError(f"criterion={criterion!r} needs n_outputs and n_extended_inputs")
     ntheta = n * (n_extended_inputs + n_outputs) + (0 if d_zero else n_outputs * n_extended_inputs)
-    return v * (1.0 + 2.0 * ntheta / (2.0 * n_lines * n_outputs))
+    n_res = 2.0 * n_lines * n_outputs
+    if criterion == "mdl":
+        return v * np.exp(ntheta * np.log(n_res) / n_res)
+    return v * (1.0 + 2.0 * ntheta / n_res)
 
 
 def ic_line_mask(frequencies_hz, excited, n_outputs: int, band="auto"):
@@ -163,6 +170,46 @@ def select_order(orders: Sequence[int], ic, stable) -> int:
     return int(np.asarray(orders)[int(np.argmin(ic))])
 
 
+def select_order_consistent(orders: Sequence[int], ic, stable, spread,
+                            spread_factor: float = 3.0) -> tuple[int, np.ndarray]:
+    """``argmin I`` over the stable orders whose nonlinear coefficients are consistent.
+
+    Parameters
+    ----------
+    orders : sequence of int
+    ic : ndarray
+        ``I(n)`` (``inf`` for excluded orders).
+    stable : bool ndarray
+    spread : ndarray
+        Coefficient spread ``rho(n)`` (:func:`ident.coefficients.coefficient_spread`); NaN or
+        inf where unknown.
+    spread_factor : float
+        An order is consistent when ``rho(n) <= spread_factor * min rho``.
+
+    Returns
+    -------
+    order : int
+    consistent : bool ndarray
+        The gate, per order.
+
+    Notes
+    -----
+    The information criterion measures the fit; it cannot see how the fit splits between
+    the force and the basis-function columns. With few outputs, high orders keep lowering V
+    while the split degrades (the extra poles trade ``G_p`` for ``G_a`` along the
+    describing function), and ``argmin I`` then returned c_a off by -100 % on the
+    3-channel SmallSat. The seed itself confirms its IC order by the flatness of c_a (its
+    Fig. 6, Table 2); this makes that check automatic.
+    """
+    ic = np.where(np.asarray(stable, bool), np.asarray(ic, float), np.inf)
+    rho = np.asarray(spread, float)
+    ok = np.isfinite(ic) & np.isfinite(rho)
+    if not ok.any():
+        return select_order(orders, ic, stable), np.zeros(ic.size, bool)
+    gate = ok & (rho <= float(spread_factor) * float(np.min(rho[ok])))
+    return int(np.asarray(orders)[int(np.argmin(np.where(gate, ic, np.inf)))]), gate
+
+
 @dataclass(frozen=True)
 class InformationCriterion:
     """Information criterion over an order sweep.
@@ -207,7 +254,14 @@ class InformationCriterion:
                    band=band, criterion=criterion)
 
     def to_list(self) -> list[dict]:
-        """JSON-able ``[{order, value, model_error, stable}]`` (``value`` None if excluded)."""
+        """JSON-able ``[{order, value, seed_value, model_error, stable}]``.
+
+        ``value`` is ``I(n)`` of :attr:`criterion` and ``seed_value`` the seed's
+        ``V(n)(1 + n/F)`` (both None for excluded, unstable orders).
+        """
+        seed = information_criterion(self.model_error, self.orders, self.n_lines)
         return [{"order": int(n), "value": None if not np.isfinite(i) else float(i),
+                 "seed_value": float(e) if s and np.isfinite(e) else None,
                  "model_error": float(v), "stable": bool(s)}
-                for n, i, v, s in zip(self.orders, self.value, self.model_error, self.stable)]
+                for n, i, e, v, s in zip(self.orders, self.value, seed, self.model_error,
+                                         self.stable)]

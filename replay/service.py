@@ -698,7 +698,8 @@ def _names(record: Any) -> dict[str, list[str]]:
 def auto_identifier(*, prepare: Callable[[Any], Any] | None = None,
                     options: Any = None, orders: Sequence[int] = range(2, 41),
                     coefficients: Callable[[Any, Any], dict] | None = None,
-                    exact: Mapping[str, float] | None = None) -> Identifier:
+                    exact: Mapping[str, float] | None = None,
+                    spread: Callable[[Any], Callable | None] | None = None) -> Identifier:
     """An ``identify(record)`` running :func:`ident.auto.identify_auto` on each snapshot.
 
     Parameters
@@ -713,6 +714,9 @@ def auto_identifier(*, prepare: Callable[[Any], Any] | None = None,
         ``coefficients(model, data) -> {name: complex ndarray (F,)}``: c_a(f) curves.
     exact : mapping, optional
         Known coefficient values to show next to the estimates.
+    spread : callable, optional
+        ``spread(data) -> (model -> rho) or None``: coefficient consistency for the order
+        selection (:func:`ident.coefficients.spread_function`).
     """
     from ident.auto import identify_auto
     from ident.periodic import prepare_frequency_data
@@ -736,7 +740,8 @@ def auto_identifier(*, prepare: Callable[[Any], Any] | None = None,
         with warnings.catch_warnings():  # steady-state warnings go to the status, not stderr
             warnings.simplefilter("ignore")
             data = prep(record)
-            result = identify_auto(data, options, orders=orders)
+            result = identify_auto(data, options, orders=orders,
+                                   spread=spread(data) if spread is not None else None)
         curves: dict = {}
         if coefficients is not None:
             curves["frequency_hz"] = data.frequencies_hz
@@ -976,7 +981,8 @@ def config_identifier(config: Any = None, *, truth: Mapping[str, Any] | None = N
         kw: dict[str, Any] = {}
         if config is not None:
             kw.update(highpass_hz=config.highpass_hz,
-                      steady_state_tolerance=config.steady_state_tolerance)
+                      steady_state_tolerance=config.steady_state_tolerance,
+                      basis_oversample=config.basis_oversample)
             if config.transient_periods is not None:
                 kw["transient_periods"] = config.transient_periods
         names = _names(record)
@@ -1009,8 +1015,15 @@ def config_identifier(config: Any = None, *, truth: Mapping[str, Any] | None = N
         quantity = outputs[0].quantity
     if config is not None and "d_zero" not in options:
         options["d_zero"] = config.d_zero_for(quantity or "displacement")
+    def spread_for(data: Any) -> Any:
+        from ident.coefficients import spread_function
+
+        used = [nl for nl in basis if set(nl.coefficient_names) <= set(data.basis_names)]
+        return spread_function(data, used, driving_point=driving_points(data))
+
     identify = auto_identifier(prepare=prepare, options=options or None, orders=orders,
-                               coefficients=coefficient_curves if basis else None, exact=exact)
+                               coefficients=coefficient_curves if basis else None, exact=exact,
+                               spread=spread_for if basis else None)
     what = (f"ident.auto, orders {orders[0]}-{orders[-1]}, "
             + (f"{len(basis)} nonlinear element(s): "
                + ", ".join(f"{nl.name} ({nl.kind})" for nl in basis) if basis else "linear")
