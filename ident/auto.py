@@ -38,7 +38,7 @@ from ident.errors import IdentError
 #: Policies for the poles outside the band of interest (:attr:`AutoOptions.out_of_band`).
 OUT_OF_BAND: tuple[str, ...] = ("stabilised", "drop", "keep")
 
-__all__ = ["AutoOptions", "AutoResult", "identify_auto", "modal_ct_from_dt", "confidence_statement"]
+__all__ = ["AutoOptions", "AutoResult", "identify_auto", "modal_form", "confidence_statement"]
 
 
 @dataclass(frozen=True)
@@ -215,40 +215,30 @@ class AutoOptions:
 
 
 # --------------------------------------------------------------------------------------
-def modal_ct_from_dt(a_d, b_d, c_d, sample_rate_hz: float):
-    """Continuous-time modal form from the DT model, pole by pole (spec §1.5).
+def modal_form(model):
+    """Modal form of an identified model for its own time base.
 
     Parameters
     ----------
-    a_d : ndarray, shape (n, n)
-    b_d : ndarray, shape (n, m_e)
-    c_d : ndarray, shape (p, n)
-    sample_rate_hz : float
+    model : ident.fnsi.StateSpaceModel
 
     Returns
     -------
     mu : complex ndarray, shape (n,)
-        Eigenvalues of ``A_d``.
+        Eigenvalues of ``A_d`` (the order of ``model.poles``).
     lam : complex ndarray, shape (n,)
-        ``fs log(mu)`` (rad/s).
-    c_hat : complex ndarray, shape (p, n)
-        ``C_d Phi``.
-    b_hat : complex ndarray, shape (n, m_e)
-        ``[lam_i / (mu_i - 1)] (Phi^-1 B_d)_i`` (the CT modal input rows).
-
-    Notes
-    -----
-    Exact ZOH inverse in modal coordinates: ``b_c,i = lam_i/(mu_i - 1) b_d,i``; the factor
-    tends to ``fs`` as ``mu -> 1``. Identical to diagonalising the CT model of
-    :func:`ident.fnsi.discrete_to_continuous`, without the logm round trip.
+        CT poles (rad/s), ``model.poles.eigenvalues``.
+    c_hat, b_hat : complex ndarray, shapes (p, n), (n, m_e)
+        ``C_c Phi`` and ``Phi^-1 B_c``: the CT modal outputs and inputs (``A_c`` shares the
+        eigenvectors ``Phi`` of ``A_d`` for every time base).
+    c_hat_d, b_hat_d : complex ndarray, shapes (p, n), (n, m_e)
+        ``C_d Phi`` and ``Phi^-1 B_d``.
     """
-    fs = float(sample_rate_hz)
-    mu, phi = np.linalg.eig(np.asarray(a_d))
-    lam = fs * np.log(mu.astype(complex))
-    bh = np.linalg.solve(phi, np.asarray(b_d, dtype=complex))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        fac = np.where(np.abs(mu - 1) > 1e-12, lam / (mu - 1), fs)
-    return mu, lam, np.asarray(c_d) @ phi, fac[:, None] * bh
+    from ident import fnsi
+    mu, phi, _ = fnsi._dt_modal(model)
+    lam = np.asarray(model.poles.eigenvalues)
+    return (mu, lam, model.c_c @ phi, np.linalg.solve(phi, model.b_c.astype(complex)),
+            model.c_d @ phi, np.linalg.solve(phi, model.b_d.astype(complex)))
 
 
 # --------------------------------------------------------------------------------------
@@ -808,7 +798,7 @@ def identify_auto(data, options: AutoOptions | dict | None = None, *,
         for n in {n_sel, n_mdi}:
             models[n] = fnsi.model_at_order(decomp, data, n, d_zero=options.d_zero)
     full = models[n_mdi]
-    mu, lam, ch, bh = modal_ct_from_dt(full.a_d, full.b_d, full.c_d, full.sample_rate_hz)
+    mu, lam, ch, bh, ch_d, bh_d = modal_form(full)
     weights = mdi_mod.input_weights(data.E_physical, data.n_inputs, options.input_scaling)
     oweights = mdi_mod.output_weights(data.Y, options.output_scaling, data.noise_cov)
     md = mdi_mod.modal_dominancy(lam, ch, bh, boi, norm=options.mdi_norm, weights=weights,
@@ -884,10 +874,8 @@ def identify_auto(data, options: AutoOptions | dict | None = None, *,
     # detectability: in its own bandwidth a mode must stand out of the model's residual
     # (spec §8.5); nested models of one SVD keep noise-fitting poles "stable" across
     # orders, so stability alone does not make a mode
-    fac = np.where(np.abs(mu - 1) > 1e-12, lam / np.where(np.abs(mu - 1) > 1e-12, mu - 1, 1),
-                   full.sample_rate_hz)
     y_model = _model_output(full, data)
-    detection = mdi_mod.modal_detection(mu, ch, bh / fac[:, None], data.E_physical, data.z,
+    detection = mdi_mod.modal_detection(mu, ch_d, bh_d, data.E_physical, data.z,
                                         data.Y, y_model, data.frequencies_hz, md.members,
                                         md.frequency_hz, md.damping_ratio)
     undetectable = physical & ~(detection >= options.detection_sigma)
@@ -931,14 +919,9 @@ def identify_auto(data, options: AutoOptions | dict | None = None, *,
         keep_modes |= (~md.in_band & md.stable & ~nyq & (cls_arr != "new")
                        & (cls_arr != "none") & (detection >= options.detection_sigma))
     if keep_modes.any() and not keep_modes.all():
-        keep_lam = np.concatenate([lam[list(md.members[i])] for i in np.flatnonzero(keep_modes)])
-        keep_mu = np.exp(keep_lam / full.sample_rate_hz)
-        dmu = np.asarray(full.poles.discrete_eigenvalues)
-        keep_mask = np.zeros(dmu.size, bool)
-        for val in keep_mu:
-            dist = np.abs(dmu - val)
-            dist[keep_mask] = np.inf
-            keep_mask[int(np.argmin(dist))] = True
+        keep_mask = np.zeros(mu.size, bool)   # md.members index the poles of ``full``
+        for i in np.flatnonzero(keep_modes):
+            keep_mask[list(md.members[i])] = True
         reduced = reduce_model(full, data, keep_mask, d_zero=options.d_zero,
                                weighted=options.weighted)
     # the answer: the reduced model, unless the reduction made the coefficients less

@@ -21,7 +21,7 @@ field and the fix; unknown keys are rejected (typos). Example (3-DOF chain, rela
     block_rows: null             # default from p and max_order (spec §8.2)
     d_zero: null                 # default false: estimate D (see IdentConfig.d_zero_for)
     weighting: auto              # auto | none | noise
-    time_base: zoh               # zoh (spec §1.5) | bilinear (spec §1.6, band-limited data)
+    time_base: band-limited      # band-limited (anti-aliased data) | zoh (held input) | bilinear
     basis_oversample: 8          # basis functions on an 8x band-limited interpolation (§8.4)
 
 Other packages may add top-level sections through :data:`EXTRA_SECTIONS` (the robust
@@ -73,7 +73,7 @@ class IdentConfig:
     weighting: str = "auto"
     highpass_hz: float | None = None
     steady_state_tolerance: float = 0.05
-    time_base: str = "zoh"
+    time_base: str = "band-limited"
     bilinear_period_s: float | None = None
     basis_oversample: int = 8
     file: str | None = None
@@ -215,7 +215,8 @@ def parse_ident_config(data: Any, *, file: str | None = None) -> IdentConfig:
             weighting=sec.string("weighting", "auto", choices=WEIGHTINGS),
             highpass_hz=sec.number("highpass_hz", None, nonnegative=True),
             steady_state_tolerance=sec.number("steady_state_tolerance", 0.05, positive=True),
-            time_base=sec.string("time_base", "zoh", choices=("zoh", "bilinear")),
+            time_base=sec.string("time_base", "band-limited",
+                                 choices=("band-limited", "zoh", "bilinear")),
             bilinear_period_s=sec.number("bilinear_period_s", None, positive=True),
             basis_oversample=sec.integer("basis_oversample", 8, minimum=1),
             file=file,

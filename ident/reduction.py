@@ -141,4 +141,5 @@ def reduce_model(model, data, keep, *, d_zero: bool = False, weighted: bool = Tr
     b_r, d_r = fnsi.estimate_bd(a_r, c_r, data, d_zero=d_zero, weighted=weighted)
     return fnsi.make_model(a_r, b_r, c_r, d_r, sample_rate_hz=model.sample_rate_hz,
                            n_inputs=model.n_inputs, input_names=model.input_names,
-                           output_names=model.output_names)
+                           output_names=model.output_names, time_base=model.time_base,
+                           bilinear_period_s=model.bilinear_period_s)

@@ -53,7 +53,7 @@ def make_data(noise=1e-3, seed=0, f_band=(2.0, 80.0), f_exc=(2.0, 50.0)):
     data = FrequencyData(lines=lines, frequencies_hz=f, z=z, Y=Y, E=E, input_scale=np.ones(2),
                          noise_cov=None, n_inputs=1, sample_rate_hz=FS, samples_per_period=N,
                          output_names=("x1", "x2", "x3"), input_names=("p",), excited=exc,
-                         basis_names=("h",), band_hz=f_band)
+                         basis_names=("h",), band_hz=f_band, time_base="zoh")
     lam = np.linalg.eigvals(A)
     lam = lam[lam.imag > 0]
     return data, np.sort(np.abs(lam) / (2 * np.pi)), np.sort(-lam.real / np.abs(lam))
@@ -76,15 +76,28 @@ def test_fast_model_error_matches_core_steady_state(noisy):
     assert v_fast == pytest.approx(v_ref, rel=1e-9)
 
 
-def test_modal_ct_from_dt_matches_core_ct(noisy):
+@pytest.mark.parametrize("time_base", ["zoh", "band-limited"])
+def test_modal_form_matches_the_ct_and_dt_models(noisy, time_base):
+    from dataclasses import replace
     data, _, _ = noisy
+    data = replace(data, time_base=time_base)
     dec = fnsi.subspace_decomposition(data, max_order=12)
     m = fnsi.model_at_order(dec, data, 6)
-    mu, lam, ch, bh = auto.modal_ct_from_dt(m.a_d, m.b_d, m.c_d, FS)
+    mu, lam, ch, bh, ch_d, bh_d = auto.modal_form(m)
+    np.testing.assert_allclose(np.exp(lam / FS), mu, rtol=1e-12)
     w = 2 * np.pi * np.array([7.0, 23.0, 41.0])
-    H = np.array([(ch / (1j * wk - lam)) @ bh for wk in w])
-    # modal CT transfer = core CT FRF (D omitted in both: d_zero=False but compare H - D)
-    np.testing.assert_allclose(H + m.d_c, fnsi.frf(m, w / (2 * np.pi)), rtol=1e-8, atol=1e-12)
+    H = np.array([(ch / (1j * wk - lam)) @ bh for wk in w]) + m.d_c
+    H_ct = fnsi._transfer(m.a_c, m.b_c, m.c_c, m.d_c, 1j * w)
+    z = np.exp(1j * w / FS)
+    G = np.array([(ch_d / (zk - mu)) @ bh_d for zk in z]) + m.d_d
+    # the same algebra in modal and in state coordinates: rounding only (measured ~1e-14)
+    np.testing.assert_allclose(H, H_ct, rtol=1e-8, atol=1e-12 * np.abs(H_ct).max())
+    np.testing.assert_allclose(G, fnsi.transfer_discrete(m, z), rtol=1e-8,
+                               atol=1e-12 * np.abs(G).max())
+    if time_base == "zoh":   # the exact ZOH inverse: frf is the CT model
+        np.testing.assert_allclose(fnsi.frf(m, w / (2 * np.pi)), H_ct, rtol=1e-10)
+    else:                    # band-limited samples: frf is the DT transfer on the unit circle
+        np.testing.assert_allclose(fnsi.frf(m, w / (2 * np.pi)), G, rtol=1e-10)
 
 
 def test_pipeline_selects_order_keeps_physical_modes(noisy):
