@@ -248,7 +248,8 @@ def basis_of(case: Case) -> list[Nonlinearity]:
 
 
 def evaluate(case: Case, snr_db: float | None, *, steady_periods: int, transient: int = 4,
-             noise_seed: int = 11, options: dict | None = None) -> dict:
+             noise_seed: int = 11, options: dict | None = None, data_options: dict | None = None
+             ) -> dict:
     P = transient + steady_periods
     u, y = record(case, P)
     y = y.copy()
@@ -260,7 +261,7 @@ def evaluate(case: Case, snr_db: float | None, *, steady_periods: int, transient
     basis = basis_of(case)
     data = prepare_frequency_data(u=u, y=y, sample_rate_hz=case.fs, samples_per_period=case.N,
                                   basis=basis, band_hz=case.proc_hz, transient_periods=transient,
-                                  output_names=names, input_names=("F",))
+                                  output_names=names, input_names=("F",), **(data_options or {}))
     dp = f"q{case.force_dof}"
     spread = spread_function(data, basis, driving_point=dp)
 
@@ -321,11 +322,14 @@ def main() -> int:
     ap.add_argument("--periods", type=int, default=6, help="steady periods of the noisy runs")
     ap.add_argument("--auto", default=None, metavar="JSON",
                     help='identify_auto options, e.g. \'{"criterion": "mdl"}\'')
+    ap.add_argument("--data", default=None, metavar="JSON",
+                    help='prepare_frequency_data options, e.g. \'{"time_base": "bilinear"}\'')
     ap.add_argument("--write", action="store_true", help="write bench/RESULTS.md")
     a = ap.parse_args()
     import json
 
     options = json.loads(a.auto) if a.auto else None
+    data_options = json.loads(a.data) if a.data else None
     sel = cases()
     if a.cases:
         want = set(a.cases.split(","))
@@ -334,7 +338,7 @@ def main() -> int:
     t0 = time.perf_counter()
     for case in sel:
         for snr, P in ((None, 1), (a.snr_db, a.periods)):
-            r = evaluate(case, snr, steady_periods=P, options=options)
+            r = evaluate(case, snr, steady_periods=P, options=options, data_options=data_options)
             rows.append(r)
             print(f"{r['case']:18s} {str(r['snr_db']):5s} sel {r['ic_order']:2d}->{r['selected']:2d} "
                   f"{r['final']:7s}({r['final_order']:2d}) err {r['coef_err_pct']:8.3f} % "

@@ -366,7 +366,8 @@ def _model_at_order_fast(decomp, data, order, *, d_zero=False, weighted_bd=True)
         b_d, d_d = bd
     return fnsi.make_model(a_d, b_d, c_d, d_d, sample_rate_hz=data.sample_rate_hz,
                            n_inputs=data.n_inputs, input_names=data.extended_input_names,
-                           output_names=data.output_names)
+                           output_names=data.output_names, time_base=data.time_base,
+                           bilinear_period_s=data.bilinear_period_s)
 
 
 def _model_output(model, data, mask=slice(None)):
