@@ -111,7 +111,7 @@ def test_contact_fractions_at_the_default_level(default_source):
 def test_steady_state_and_double_rate_error(default_source):
     """Last two periods agree to 1e-6 (transient decays as exp(-3.46 t) over 41 s, so only
     integration round-off remains); the default 10 kHz run is within 2e-3 (relative rms,
-    worst channel) of the 20 kHz run (measured 5.9e-4; Newmark at 20 kHz, the paper's
+    worst channel) of the 20 kHz run (measured 4.0e-4; Newmark at 20 kHz, the paper's
     method, is at 8e-3)."""
     truth = default_source.truth()
     assert truth["steady_state_error"] < 1e-6

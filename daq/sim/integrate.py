@@ -18,7 +18,10 @@ response is split as ``x = x_lin + w``:
    Only the relative coordinates of the elements are evaluated at each internal step; the
    implicit dependence of ``f_{k+1}`` on ``delta_{k+1}`` (through the FOH feedthrough) is
    resolved by Newton's method on the few element forces, so stiff stops do not need a
-   tiny step. The loop is a numba kernel (``cache=True``).
+   tiny step. A step is converged when every element force agrees with its evaluation to
+   ``tol`` (relative) or to the round-off of its argument (``|dF/dx|`` times a few ulps of
+   ``x``; near a gap the relative test alone would ask for more digits than
+   ``x - g`` has). The loop is a numba kernel (``cache=True``).
 3. The recorded channels are computed afterwards in the frequency domain from the stored
    FOH forces: ``Y(w) = C (j w - Lambda)^-1 (B F_foh(w) + z_0)`` on a zero-padded grid
    long enough for every mode to decay (linear convolution, no wrap-around), multiplied
@@ -103,6 +106,11 @@ class SimulationResult:
 # reassociation lets LLVM vectorise the modal sums (the hot loop); results are still
 # deterministic for a given machine and build
 _FAST = {"reassoc", "contract", "arcp", "nsz"}
+#: Corrector round-off floor: an element force is converged when its residual is within
+#: tol |F| or within the force of this many ulps of its argument (x = ypred + D f is a
+#: rounded sum of a few terms, so it is known to ~1-2 ulps of their magnitude; see _kernel).
+_ROUNDOFF_ULPS = 8.0
+_EPS = float(np.finfo(np.float64).eps)
 
 @njit(cache=True, fastmath=_FAST)
 def _eval_forces(y, s, el, code, coef, gap, expo, signed, vel, v0, out):
@@ -167,7 +175,8 @@ def _kernel(edr, edi, g0r, g0i, g1r, g1i, bur, bui, u, bfr, bfi, cr, ci, yoff, r
     cr, ci (n_r, nm); yoff (n_off, n_r) added at step k as yoff[k % n_off];
     dmat (n_r, s); erow (s,) row of each element's own argument in ``rows``;
     fout (s, n_steps + 1) receives the element forces; counts (n_basis,).
-    Returns (largest number of corrector iterations, steps that hit ``max_iter``).
+    Returns (largest number of corrector iterations, steps that hit ``max_iter``, largest
+    relative force residual left in those steps).
     """
     nm = edr.shape[0]
     nu = u.shape[1]
@@ -188,6 +197,7 @@ def _kernel(edr, edi, g0r, g0i, g1r, g1i, bur, bui, u, bfr, bfi, cr, ci, yoff, r
     act = np.zeros(s, dtype=np.int64)
     iters_max = 0
     n_fail = 0
+    worst = 0.0  # largest relative force residual |F(y) - f| / |F| of unconverged steps
     # step 0: forces from the initial state
     for r in range(n_r):
         acc = yoff[0, r]
@@ -272,8 +282,37 @@ def _kernel(edr, edi, g0r, g0i, g1r, g1i, bur, bui, u, bfr, bfi, cr, ci, yoff, r
                 for a in range(s):
                     f[a] = fn[a]
                 break
+            if it >= 3:
+                # Newton stage. The relative test above cannot always be met: near a gap
+                # (stop about to open, |h| = |x| - g << |x|) the force is known only to the
+                # round-off of its argument x = ypred + D f, |G| ulp(x), which can exceed
+                # tol |F|; the iteration then flips x by one ulp for ever (measured:
+                # |x + g| = 6e-5 mm at x = -1.5 mm, residual 116.73 N/mm x 1 ulp = 2.6e-14 N
+                # > 1e-12 x 7.3e-3 N). Accept, element by element, a residual within
+                # tol |F| + _ROUNDOFF_ULPS eps |G_a| (|ypred_a| + sum_b |D_ab f_b|): the
+                # contact set is then settled and f is exact to the precision of x itself.
+                _eval_slopes(y, s, el, code, coef, gap, expo, signed, vel, v0, slope)
+                settled = True
+                for a in range(s):
+                    d = np.abs(fn[a] - f[a])
+                    if d > tol * scale:
+                        ra = erow[a]
+                        mag = np.abs(ypred[ra])
+                        for b in range(s):
+                            mag += np.abs(dmat[ra, b] * f[b])
+                        if d > tol * scale + _ROUNDOFF_ULPS * _EPS * np.abs(slope[a]) * mag:
+                            settled = False
+                            break
+                if settled:
+                    for a in range(s):
+                        f[a] = fn[a]
+                    break
             if it >= max_iter:
+                # genuine non-convergence (the contact set or a stiff element keeps changing)
                 n_fail += 1
+                rel = diff / max(scale, 1e-300)
+                if rel > worst:
+                    worst = rel
                 for a in range(s):
                     f[a] = fn[a]
                 break
@@ -285,9 +324,9 @@ def _kernel(edr, edi, g0r, g0i, g1r, g1i, bur, bui, u, bfr, bfi, cr, ci, yoff, r
                     if f[a] != 0.0:
                         any_f = True
                 continue
-            # then Newton: (I - G D) delta = F(y) - f with G = diag(dF_a/dx_a); rows of
-            # elements with G = 0 are the identity, so only the active block is solved
-            _eval_slopes(y, s, el, code, coef, gap, expo, signed, vel, v0, slope)
+            # then Newton: (I - G D) delta = F(y) - f with G = diag(dF_a/dx_a) (evaluated
+            # above); rows of elements with G = 0 are the identity, so only the active block
+            # is solved
             n_act = 0
             for a in range(s):
                 delta[a] = fn[a] - f[a]
@@ -342,7 +381,7 @@ def _kernel(edr, edi, g0r, g0i, g1r, g1i, bur, bui, u, bfr, bfi, cr, ci, yoff, r
                     counts[b] += 1
                 elif code[b] == BASIS_POS and x > gap[b]:
                     counts[b] += 1
-    return iters_max, n_fail
+    return iters_max, n_fail, worst
 
 
 # ---------------------------------------------------------------------------- helpers
@@ -532,7 +571,11 @@ def simulate(model: StructuralModel, force: np.ndarray, sample_rate_hz: float, *
     count_from : int, optional
         Output sample from which stop contacts are counted (the steady-state periods).
     tol, max_iter : float, int
-        Corrector tolerance (relative, on element forces) and Newton iteration cap per step.
+        Corrector tolerance (relative, on element forces) and iteration cap per step. A
+        residual within the round-off of the element's argument (a few ulps of it times the
+        element stiffness) also counts as converged: near a gap the relative tolerance is
+        below what double precision can resolve. Steps that reach ``max_iter`` are counted
+        in ``unconverged_steps`` and reported by a ``RuntimeWarning``.
 
     Returns
     -------
@@ -604,29 +647,33 @@ def simulate(model: StructuralModel, force: np.ndarray, sample_rate_hz: float, *
     fout = np.zeros((s, n_fine + 1))
     counts = np.zeros(len(tabs.names), dtype=np.int64)
     iters = n_fail = 0
+    worst = 0.0
     if s:
         rows = np.nonzero(prep.need)[0].astype(np.int64)
         erow = np.array([int(np.nonzero(rows == (s + a if el.uses_velocity else a))[0][0])
                          for a, el in enumerate(model.nonlinearities)], dtype=np.int64)
-        iters, n_fail = _kernel(prep.e.real.copy(), prep.e.imag.copy(), prep.g0.real.copy(),
-                        prep.g0.imag.copy(), prep.g1.real.copy(), prep.g1.imag.copy(),
-                        np.ascontiguousarray(bu.real), np.ascontiguousarray(bu.imag), u_fine,
-                        np.ascontiguousarray(prep.bf.real), np.ascontiguousarray(prep.bf.imag),
-                        np.ascontiguousarray(prep.cnl.real[rows]),
-                        np.ascontiguousarray(prep.cnl.imag[rows]),
-                        np.ascontiguousarray(yoff), rows, erow, z0.real.copy(),
-                        z0.imag.copy(), np.ascontiguousarray(prep.dmat[rows]), tabs.element,
-                        tabs.code, tabs.coef, tabs.gap, tabs.exponent, tabs.signed,
-                        tabs.velocity, tabs.v0, int(count_from) * os_, fout, counts,
-                        float(tol), int(max_iter))
+        iters, n_fail, worst = _kernel(
+            prep.e.real.copy(), prep.e.imag.copy(), prep.g0.real.copy(), prep.g0.imag.copy(),
+            prep.g1.real.copy(), prep.g1.imag.copy(), np.ascontiguousarray(bu.real),
+            np.ascontiguousarray(bu.imag), u_fine, np.ascontiguousarray(prep.bf.real),
+            np.ascontiguousarray(prep.bf.imag), np.ascontiguousarray(prep.cnl.real[rows]),
+            np.ascontiguousarray(prep.cnl.imag[rows]), np.ascontiguousarray(yoff), rows, erow,
+            z0.real.copy(), z0.imag.copy(), np.ascontiguousarray(prep.dmat[rows]), tabs.element,
+            tabs.code, tabs.coef, tabs.gap, tabs.exponent, tabs.signed, tabs.velocity, tabs.v0,
+            int(count_from) * os_, fout, counts, float(tol), int(max_iter))
     if s and not np.all(np.isfinite(fout)):
         raise IntegrationError(
             f"integration diverged at {fs * os_:g} Hz internal rate: a nonlinear element is too "
             f"stiff for the step (its local frequency is ~{_element_frequency_hz(model):.3g} Hz); "
             f"raise oversample so that the internal rate exceeds ~2 pi times it")
     if n_fail:
-        warnings.warn(f"nonlinear corrector did not converge in {n_fail} of {n_fine} steps; "
-                      "raise oversample", RuntimeWarning, stacklevel=2)
+        warnings.warn(
+            f"nonlinear corrector did not converge in {n_fail} of {n_fine} steps (largest "
+            f"force residual {worst:.2g} of the element force after {int(max_iter)} "
+            f"iterations): the contact state or a stiff element does not settle within a step "
+            f"at the {fs * os_:g} Hz internal rate; raise oversample (e.g. to {2 * os_}) "
+            f"so that each step changes the element forces less, or max_iter",
+            RuntimeWarning, stacklevel=2)
     n_counted = max(n_fine - int(count_from) * os_, 1)
     contact = {name: float(c) / n_counted for name, c, code in
                zip(tabs.names, counts, tabs.code) if code in (BASIS_NEG, BASIS_POS)}

@@ -385,6 +385,7 @@ class SimulatedSource(Source):
         info: dict[str, Any] = {"contact_fraction": res.contact_fraction,
                                 "steady_state_error": steady_state_error(clean, n_per, exc.periods),
                                 "iterations_max": res.iterations_max,
+                                "unconverged_steps": res.unconverged_steps,
                                 "internal_rate_hz": res.internal_rate_hz}
         if self.options.verify and r == 0 and self.model.nonlinearities:
             fine = simulate(self.model, force, self._sample_rate_hz,
