@@ -1093,9 +1093,20 @@ def _print_auto_summary(res: AutoResult, out=None) -> None:
               f"{'physical' if row['physical'] else 'spurious'}", file=out)
     if res.reduced is not None:
         print(f"reduced model: order {res.reduced.order}", file=out)
-    for label, key in (("selected", "selected"), ("reduced", "reduced")):
+    answer = "reduced" if res.final == "reduced" else "full"
+    print(f"answer: the {'reduced' if answer == 'reduced' else 'full'} model at order "
+          f"{res.final_model.order}" + (" (the reduction did not make the coefficients more "
+                                        "consistent)" if res.reduced is not None
+                                        and answer == "full" else ""), file=out)
+    rows = [("selected", "selected")]
+    if res.mdi_order != res.selected_order:
+        rows.append((f"order {res.mdi_order}", "full"))
+    rows.append(("reduced", "reduced"))
+    for label, key in rows:
         for c in res.coefficients.get(key) or []:
             err = (f"  error {c['error_percent']:+.3f} %" if c.get("error_percent") is not None
                    else "")
+            mark = " <- answer" if key == answer or (answer == "full" and key == "selected"
+                                                     and res.mdi_order == res.selected_order) else ""
             print(f"  {label} {c['name']}: mean {c['mean_real']:.6g} (std {c['std_real']:.3g})"
-                  f"{err}", file=out)
+                  f"{err}{mark}", file=out)

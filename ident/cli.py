@@ -59,7 +59,8 @@ def add_ident_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the ``ident`` options to ``parser`` (core, then the robust pipeline's hook)."""
     parser.add_argument("input", metavar="INPUT", help="recording (.mcap) or array file (.npz, .mat)")
     parser.add_argument("--config", required=True, metavar="IDENT.yaml",
-                        help="ident configuration (band, channels, nonlinearities; docs/ident.md)")
+                        help="ident configuration (band, channels, nonlinearities; docs/ident.md); "
+                             "a bare name such as smallsat39 picks a packaged example")
     parser.add_argument("--order", type=int, default=None, metavar="N",
                         help="model order (overrides the config's 'order')")
     parser.add_argument("--max-order", type=int, default=None, metavar="N",
@@ -69,6 +70,9 @@ def add_ident_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", dest="json_out", default=None, metavar="OUT.json",
                         help="write the result as JSON ('-' for stdout)")
     parser.add_argument("--quiet", action="store_true", help="no summary on stdout")
+    parser.add_argument("--blas-threads", type=int, default=1, metavar="T",
+                        help="OpenBLAS threads (default 1: the many small solves of the order "
+                             "sweep run 10-40x slower multi-threaded on a shared small machine)")
     mod = _robust_module()
     hook = getattr(mod, "add_cli_arguments", None) if mod is not None else None
     if hook is not None:
@@ -139,10 +143,23 @@ def apply_recording_truth(cfg: IdentConfig, truth: dict | None) -> tuple[IdentCo
     return replace(cfg, nonlinearities=tuple(nls)), notes
 
 
+def _config_path(name: str) -> Path:
+    """``name`` as given, or the packaged example of that name when no such file exists."""
+    path = Path(name)
+    if not path.exists() and path.parent == Path("."):
+        from ident.config import packaged_config
+
+        try:
+            return packaged_config(name)
+        except IdentError:
+            return path      # let the loader report the missing file
+    return path
+
+
 def prepare_session(args: argparse.Namespace) -> IdentSession:
     """Load the config and INPUT, select channels, build :class:`FrequencyData`."""
     t0 = time.perf_counter()
-    cfg = load_ident_config(args.config)
+    cfg = load_ident_config(_config_path(args.config))
     inp = load_input(args.input, samples_per_period=cfg.samples_per_period)
     inp = select_channels(inp, outputs=cfg.outputs,
                           inputs=[i.name for i in cfg.inputs] or None)
@@ -267,6 +284,10 @@ def write_json(obj: dict, target: str | None) -> None:
 def run_ident(args: argparse.Namespace) -> int:
     """Handler of ``fnsi-lab ident``; returns the exit status."""
     t0 = time.perf_counter()
+    if getattr(args, "blas_threads", 0) and args.blas_threads > 0:
+        from fnsi_lab.blas import limit_blas_threads
+
+        limit_blas_threads(args.blas_threads)
     session = prepare_session(args)
     mod = _robust_module()
     hook = getattr(mod, "run_cli", None) if mod is not None else None

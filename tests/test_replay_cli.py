@@ -130,3 +130,33 @@ def test_replay_follow_picks_up_a_file_being_written(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "4 periods (3 steady)" in out
     assert "0 samples lost" in out
+
+
+@pytest.mark.slow
+def test_run_is_the_readme_main_job_on_the_default_smallsat(tmp_path, capsys):
+    """``fnsi-lab run`` (the README's first command): simulated SmallSat -> MCAP -> robust
+    identification -> .rrd + the Table-2 summary."""
+    pytest.importorskip("daq.sim.source", reason="daq.sim.source (simulated sources) missing")
+    mcap, rrd = tmp_path / "smallsat.mcap", tmp_path / "smallsat.rrd"
+    assert main(["run", "--out", str(mcap), "--rrd", str(rrd), "--quiet"]) == 0
+    out = capsys.readouterr().out
+    assert "0 blocks dropped" in out and "0 failures" in out
+    from daq.recording.reader import read_periodic
+
+    rec = read_periodic(mcap)      # the paper's record: 6 periods of 8192 samples, 39 outputs
+    assert rec.y.shape[1:] == (6, 8192, 39) and rec.u.shape[-1] == 1
+    # the summary names both NC2-Z stops with their error against the truth; the paper's
+    # worst Table-2 error is 0.76 %, ours is ~0.1-0.2 % (bench/RESULTS.md): 1 % bounds it
+    rows = [ln for ln in out.splitlines() if ln.startswith("NC2-Z:")]
+    assert len(rows) >= 2
+    for ln in rows:
+        err = float(ln.split("error")[1].split("%")[0])
+        assert abs(err) < 1.0, ln
+    # the modes of Table 1 with the largest response (11.01, 28.41, 32.62 Hz) are listed
+    # and classified physical (0.5 %: the issue's tolerance)
+    table = [ln.split() for ln in out.splitlines() if ln.strip().endswith(("yes", "no"))]
+    phys = [float(t[0]) for t in table if t[-1] == "yes"]
+    for f in (11.01, 28.41, 32.62):
+        assert min(abs(p - f) / f for p in phys) < 5e-3, (f, phys)
+    entities = set(rrd_entities(rrd))
+    assert {paths.coefficient("NC2-Z:neg", "full"), paths.MDI_KEPT, paths.ORDER_CRITERION} <= entities
