@@ -246,19 +246,26 @@ MARKERS = {"new": ".", "frequency": "x", "damping": "s", "mode": "o", "stable": 
 def fig_ic(res, path, title):
     plt = _plt()
     ic = res.information_criterion
-    fig, ax = plt.subplots(figsize=(6, 3.2))
+    seed = np.array([e["seed_value"] if e["seed_value"] is not None else np.nan
+                     for e in ic.to_list()])
+    fig, ax = plt.subplots(figsize=(6.5, 3.4))
     ok = np.isfinite(ic.value)
-    ax.plot(ic.orders[ok], ic.value[ok], "k.-", lw=1)
+    ax.plot(ic.orders[ok], ic.value[ok], "k.-", lw=1, label=f"I(n), {ic.criterion}")
+    ax.plot(ic.orders, seed, color="0.5", ls="--", lw=0.8, label="seed Eq. 8, V(1 + n/F)")
+    if res.consistent.size and res.consistent.any():
+        bad = ok & ~res.consistent
+        ax.plot(ic.orders[bad], ic.value[bad], "o", mfc="none", mec="tab:orange", ms=6,
+                label="coefficients not consistent (gated out)")
     ax.plot(ic.orders[~ok], ic.model_error[~ok] * (1 + ic.orders[~ok] / ic.n_lines), "rx",
             label="unstable (excluded)")
     k = list(ic.orders).index(res.selected_order)
-    ax.plot(res.selected_order, ic.value[k], "o", mfc="none", mec="r", ms=10,
-            label=f"optimal order {res.selected_order}")
+    ax.plot(res.selected_order, ic.value[k], "o", mfc="none", mec="r", ms=11, mew=1.5,
+            label=f"selected order {res.selected_order}")
     ax.set_xlabel("Model order")
     ax.set_ylabel("Information criterion")
     ax.set_yscale("log")
     ax.set_title(title, fontsize=9)
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
