@@ -63,7 +63,7 @@ def make_identifier(args: argparse.Namespace, metadata: dict[str, Any],
             path = packaged_config(args.ident)  # a packaged example by name
         config = load_ident_config(path)
     return config_identifier(config, truth=metadata.get("truth"), orders=orders,
-                             channels=channels)
+                             channels=channels, harmonics=getattr(args, "harmonics", 1.0))
 
 
 class LiveRun:
@@ -372,7 +372,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 # ---------------------------------------------------------------------------- parser
-def _common(p: argparse.ArgumentParser, orders: str = DEFAULT_ORDERS) -> None:
+def _common(p: argparse.ArgumentParser, orders: str = DEFAULT_ORDERS,
+            harmonics: float = 1.0) -> None:
     from viewer.cli import add_viewer_arguments
 
     g = p.add_argument_group("identification")
@@ -380,6 +381,10 @@ def _common(p: argparse.ArgumentParser, orders: str = DEFAULT_ORDERS) -> None:
                    help="identification config (basis functions, band, options)")
     g.add_argument("--orders", default=orders, metavar="FIRST:LAST",
                    help=f"model orders of the sweep (default {orders})")
+    g.add_argument("--harmonics", type=float, default=harmonics, metavar="K",
+                   help="without --ident: process the lines up to K times the highest excited "
+                        "frequency, where the nonlinear distortion lives (5: the paper's "
+                        f"5-250 Hz for a 5-50 Hz multisine; default {harmonics:g})")
     g.add_argument("--every", type=int, default=1, metavar="K",
                    help="re-identify after every K new steady-state periods (default 1)")
     g.add_argument("--method", choices=("auto", "frf"), default="auto",
@@ -424,7 +429,7 @@ def register(subparsers: Any) -> None:
     p.add_argument("--out", metavar="FILE.mcap", help="recording (default: the config's output)")
     p.add_argument("--queue-blocks", type=int, default=1 << 16, metavar="B",
                    help="capacity of the identification queue in blocks (drop-oldest)")
-    _common(p, orders="2:60")
+    _common(p, orders="2:60", harmonics=5.0)
     p.set_defaults(handler=_cmd_run, speed=None)
 
     p = subparsers.add_parser(
