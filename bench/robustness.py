@@ -52,23 +52,10 @@ from ident.periodic import prepare_frequency_data  # noqa: E402
 # ------------------------------------------------------------------------------ structures
 def chain(masses, springs, *, alpha=2.0, beta=1e-4, dashpot=(0, 1, 3.0)):
     """Grounded chain: M, C (Rayleigh + one dashpot: non-proportional), K."""
-    m = np.asarray(masses, float)
-    k = np.asarray(springs, float)
-    n = m.size
-    K = np.zeros((n, n))
-    K[0, 0] = k[0]
-    for i in range(1, n):
-        K[i - 1, i - 1] += k[i]
-        K[i, i] += k[i]
-        K[i - 1, i] -= k[i]
-        K[i, i - 1] -= k[i]
-    C = alpha * np.diag(m) + beta * K
-    a, b, c = dashpot
-    C[a, a] += c
-    C[b, b] += c
-    C[a, b] -= c
-    C[b, a] -= c
-    return np.diag(m), C, K
+    from daq.sim.lumped import lumped_model
+    m = lumped_model("none", masses=masses, springs=springs, mass_damping=alpha,
+                     stiffness_damping=beta, dashpot=dashpot[2], dashpot_dofs=dashpot[:2])
+    return m.mass, m.damping, m.stiffness
 
 
 @dataclass

@@ -33,7 +33,8 @@ DEFAULT_SPRINGS = (2.0e4, 1.0e4, 1.0e4)
 def lumped_model(variant: LumpedVariant = "cubic", *, masses=DEFAULT_MASSES,
                  springs=DEFAULT_SPRINGS, mass_damping: float = 3.0,
                  stiffness_damping: float = 2e-4,
-                 dashpot: float = 5.0, k3: float = 1.0e9,
+                 dashpot: float = 5.0, dashpot_dofs: tuple[int, int] = (0, 1),
+                 k3: float = 1.0e9,
                  clearances: tuple[float, float] = (4e-4, 5e-4),
                  contact: tuple[float, float] = (2.0e4, 1.5e4),
                  force_dof: int | None = None) -> StructuralModel:
@@ -49,7 +50,9 @@ def lumped_model(variant: LumpedVariant = "cubic", *, masses=DEFAULT_MASSES,
     mass_damping, stiffness_damping : float
         alpha (1/s) and beta (s) of ``C = alpha M + beta K`` (+ the dashpot).
     dashpot : float
-        Extra dashpot between DOFs 0 and 1 (N s/m); makes damping non-proportional.
+        Extra dashpot between ``dashpot_dofs`` (N s/m); makes damping non-proportional.
+    dashpot_dofs : (int, int)
+        The two DOFs of the dashpot (default 0 and 1).
     k3 : float
         Cubic coefficient (N/m^3) of the ``cubic`` and ``duffing`` variants.
     clearances : (float, float)
@@ -82,10 +85,11 @@ def lumped_model(variant: LumpedVariant = "cubic", *, masses=DEFAULT_MASSES,
         kk[i - 1, i] -= k[i]
         kk[i, i - 1] -= k[i]
     cc = mass_damping * np.diag(m) + stiffness_damping * kk
-    cc[0, 0] += dashpot
-    cc[1, 1] += dashpot
-    cc[0, 1] -= dashpot
-    cc[1, 0] -= dashpot
+    i, j = (int(d) for d in dashpot_dofs)
+    cc[i, i] += dashpot
+    cc[j, j] += dashpot
+    cc[i, j] -= dashpot
+    cc[j, i] -= dashpot
     names = tuple(f"X{i + 1}" for i in range(n))
     fdof = n - 1 if force_dof is None else int(force_dof)
     t = np.zeros((n, 1))
