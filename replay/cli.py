@@ -419,7 +419,8 @@ def register(subparsers: Any) -> None:
                     "stabilisation, MDI, spurious-pole removal) and save everything to a "
                     "Rerun recording; the result table (the paper's Table 2 layout, with "
                     "errors when the recording carries its truth) is printed at the end. "
-                    "The same as `fnsi-lab live --fast`, with the paper's order sweep 2..60.",
+                    "The same as `fnsi-lab live --fast`, with the paper's order sweep 2..60 and its "
+                    "processed band (--harmonics 5).",
         epilog="examples:\n"
                "  fnsi-lab run --out smallsat.mcap --rrd smallsat.rrd   # simulated SmallSat\n"
                "  fnsi-lab run --config lumped.yaml --rrd lumped.rrd    # packaged small model\n"
