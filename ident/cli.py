@@ -178,7 +178,8 @@ def prepare_session(args: argparse.Namespace) -> IdentSession:
             input_names=inp.input_channels, excited_lines=inp.excited_lines,
             highpass_hz=cfg.highpass_hz, steady_state_tolerance=cfg.steady_state_tolerance,
             time_base=cfg.time_base, bilinear_period_s=cfg.bilinear_period_s,
-            basis_oversample=cfg.basis_oversample)
+            basis_oversample=cfg.basis_oversample,
+            integration_min_snr=cfg.integration_min_snr or None)
     t2 = time.perf_counter()
     weighted = cfg.weighting != "none"
     if cfg.weighting == "noise" and data.noise_cov is None:

@@ -21,8 +21,9 @@ field and the fix; unknown keys are rejected (typos). Example (3-DOF chain, rela
     block_rows: null             # default from p and max_order (spec §8.2)
     d_zero: null                 # default false: estimate D (see IdentConfig.d_zero_for)
     weighting: auto              # auto | none | noise
-    time_base: band-limited      # band-limited (anti-aliased data) | zoh (held input) | bilinear
+    time_base: auto              # auto | band-limited (anti-aliased) | zoh (held input) | bilinear
     basis_oversample: 8          # basis functions on an 8x band-limited interpolation (§8.4)
+    integration_min_snr: 4       # accelerations: lines below 4x their noise not integrated
 
 Other packages may add top-level sections through :data:`EXTRA_SECTIONS` (the robust
 pipeline adds its own keys there); their parsed values land in ``IdentConfig.extra``.
@@ -73,9 +74,10 @@ class IdentConfig:
     weighting: str = "auto"
     highpass_hz: float | None = None
     steady_state_tolerance: float = 0.05
-    time_base: str = "band-limited"
+    time_base: str = "auto"
     bilinear_period_s: float | None = None
     basis_oversample: int = 8
+    integration_min_snr: float | None = 4.0
     file: str | None = None
     extra: dict = field(default_factory=dict)
 
@@ -98,7 +100,8 @@ class IdentConfig:
 
 
 _NUMERIC_KEYS = {"band_hz", "clearances", "clearance", "truth", "exponent", "velocity_scale",
-                 "offset", "highpass_hz", "steady_state_tolerance", "bilinear_period_s"}
+                 "offset", "highpass_hz", "steady_state_tolerance", "bilinear_period_s",
+                 "integration_min_snr"}
 _FLOAT_RE = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
 
 
@@ -215,10 +218,11 @@ def parse_ident_config(data: Any, *, file: str | None = None) -> IdentConfig:
             weighting=sec.string("weighting", "auto", choices=WEIGHTINGS),
             highpass_hz=sec.number("highpass_hz", None, nonnegative=True),
             steady_state_tolerance=sec.number("steady_state_tolerance", 0.05, positive=True),
-            time_base=sec.string("time_base", "band-limited",
-                                 choices=("band-limited", "zoh", "bilinear")),
+            time_base=sec.string("time_base", "auto",
+                                 choices=("auto", "band-limited", "zoh", "bilinear")),
             bilinear_period_s=sec.number("bilinear_period_s", None, positive=True),
             basis_oversample=sec.integer("basis_oversample", 8, minimum=1),
+            integration_min_snr=sec.number("integration_min_snr", 4.0, nonnegative=True),
             file=file,
             extra={k: parser(sec, k) for k, parser in EXTRA_SECTIONS.items() if sec.has(k)})
         sec.finish()

@@ -991,7 +991,8 @@ def config_identifier(config: Any = None, *, truth: Mapping[str, Any] | None = N
         if config is not None:
             kw.update(highpass_hz=config.highpass_hz,
                       steady_state_tolerance=config.steady_state_tolerance,
-                      basis_oversample=config.basis_oversample)
+                      basis_oversample=config.basis_oversample,
+                      integration_min_snr=config.integration_min_snr or None)
             if config.transient_periods is not None:
                 kw["transient_periods"] = config.transient_periods
         names = _names(record)

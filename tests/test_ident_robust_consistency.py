@@ -161,3 +161,36 @@ def test_three_channel_smallsat_order_selection_keeps_the_coefficients_physical(
     assert res.order_selection == "consistent"
     assert res.consistent[list(res.information_criterion.orders).index(res.selected_order)]
     assert np.isfinite(seed_vals).any()
+
+
+def test_noisy_accelerations_integrate_only_the_lines_above_the_noise():
+    """40 dB white noise on the accelerations of the cubic chain (6 periods averaged): the
+    double integration for the basis function blows up the noise of the lines below the
+    excitation unless those lines are dropped (ident.periodic.noise_gain)."""
+    sim = pytest.importorskip("daq.sim")
+    from daq.multisine import excited_lines, multisine
+    fs, N = 512.0, 4096
+    model = sim.lumped_model("cubic")
+    u = np.asarray(multisine(N, fs, (5, 60), 20.0, n_periods=10, seed=1).signal).reshape(-1, 1)
+    res = sim.simulate(model, u, fs, periodic=N)
+    offset = float(np.mean(res.displacement[-N:, 1] - res.displacement[-N:, 2]))
+    nl = Nonlinearity("knl", "polynomial", {"X2": 1, "X3": -1}, exponent=3, truth=(1e9,),
+                      offset=offset)
+    y = res.acceleration + (np.random.default_rng(0).standard_normal(res.acceleration.shape)
+                            * np.std(res.acceleration[-N:], axis=0) * 1e-2)
+    err = {}
+    for snr in (4.0, None):
+        data = prepare_frequency_data(u=u, y=y, sample_rate_hz=fs, samples_per_period=N,
+                                      basis=[nl], band_hz=(3, 150), transient_periods=4,
+                                      output_names=model.measured_names,
+                                      input_names=model.input_names,
+                                      output_quantity="acceleration", integration_min_snr=snr,
+                                      excited_lines=excited_lines(N, fs, (5, 60)))
+        r = auto.identify_auto(data, orders=range(2, 31),
+                               spread=spread_function(data, [nl], driving_point="X3"))
+        (s,) = summarize_coefficients(nonlinear_coefficients(r.final_model, data, [nl],
+                                                             driving_point="X3"))
+        err[snr] = abs(s.error_percent)
+    # measured over 5 noise seeds: 1.0-4.7 % (median 2.4 %) with the mask, 80-99 % without
+    assert err[4.0] < 10.0
+    assert err[None] > 30.0
