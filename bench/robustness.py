@@ -76,6 +76,7 @@ class Case:
     fs: float = 1000.0
     N: int = 4096
     orders: tuple = (2, 30)
+    quantity: str = "displacement"     # measured output quantity ('sim' cases only)
     note: str = ""
     extra: dict = field(default_factory=dict)
 
@@ -140,6 +141,19 @@ def cases() -> list[Case]:
                     [element("tip", "polynomial", 8, {7: 1.0}, {"k": 1e10}, exponent=3)],
                     rms=5.0, band_hz=(5, 120), proc_hz=(5, 250), N=8192, orders=(2, 40),
                     note="4 of 8 DOFs"))
+    # 6-7. accelerometers: the 3-DOF cubic chain and the 5-DOF chain with a stop, measured
+    #      as accelerations (the basis functions need a double integration)
+    M, C, K = chain([1.0, 1.0, 1.0], [2e4, 1e4, 1e4])
+    out.append(Case("chain3-cubic-acc", "sim", M, C, K, 2, (0, 1, 2),
+                    [element("cub", "polynomial", 3, {1: 1.0, 2: -1.0}, {"k": 1e9}, exponent=3)],
+                    rms=10.0, band_hz=(3, 60), proc_hz=(3, 150), quantity="acceleration",
+                    note="accelerations"))
+    M, C, K = chain([1.0, 0.8, 1.2, 1.0, 0.6], [3e4, 2e4, 2e4, 1.5e4, 1e4])
+    out.append(Case("chain5-stop-acc", "sim", M, C, K, 4, (0, 1, 2, 3, 4),
+                    [element("stop", "trilinear", 5, {2: 1.0, 3: -1.0},
+                             {"neg": 4e4, "pos": 3e4}, clearances=(2e-4, 3e-4))],
+                    rms=8.0, band_hz=(5, 60), proc_hz=(5, 200), quantity="acceleration",
+                    note="accelerations"))
     return out
 
 
@@ -191,8 +205,11 @@ def simulate_sim(case: Case, u: np.ndarray, n_periods: int) -> np.ndarray:
     from daq.sim.integrate import simulate
 
     res = simulate(case.model(), u[:, None], case.fs, periodic=case.N, oversample=20,
-                   quantities=("displacement",))
-    return res.displacement
+                   quantities=("displacement", case.quantity))
+    y = getattr(res, case.quantity)
+    if case.quantity != "displacement":  # the static relative positions, given as known
+        y = np.concatenate([y, res.displacement], axis=1)
+    return y
 
 
 _CACHE = ROOT / "bench" / "out"
@@ -206,7 +223,8 @@ def record(case: Case, n_periods: int, seed: int = 3):
                            case.K.tolist(), case.force_dof, case.measured,
                            [(e.kind, e.weights.tolist(), sorted(e.coefficients.items()),
                              e.clearances, e.exponent) for e in case.elements], case.rms,
-                           case.band_hz, case.fs, case.N, n_periods, seed)).encode())
+                           case.band_hz, case.fs, case.N, n_periods, seed,
+                           case.quantity)).encode())
     path = _CACHE / f"robust_{case.name}_{h.hexdigest()[:10]}.npz"
     if path.exists():
         z = np.load(path)
@@ -220,17 +238,24 @@ def record(case: Case, n_periods: int, seed: int = 3):
 
 
 # ------------------------------------------------------------------------------ evaluation
-def basis_of(case: Case) -> list[Nonlinearity]:
+def basis_of(case: Case, displacement: np.ndarray | None = None) -> list[Nonlinearity]:
+    """The true basis; ``displacement`` (n_samples, measured): the static relative position
+    of each element, known as the clearances are (velocity/acceleration outputs lose it)."""
     out = []
     names = [f"q{i}" for i in range(case.M.shape[0])]
     for el in case.elements:
         chans = {names[i]: float(w) for i, w in enumerate(el.weights) if w != 0}
+        offset = 0.0
+        if displacement is not None:
+            w = np.array([el.weights[i] for i in case.measured])
+            offset = float(np.mean(displacement[-case.N:] @ w))
         if el.kind == "polynomial":
             out.append(Nonlinearity(el.name, "polynomial", chans, exponent=el.exponent,
-                                    truth=(el.coefficients["k"],)))
+                                    truth=(el.coefficients["k"],), offset=offset))
         elif el.kind == "trilinear":
             out.append(Nonlinearity(el.name, "trilinear", chans, clearances=el.clearances,
-                                    truth=(el.coefficients["neg"], el.coefficients["pos"])))
+                                    truth=(el.coefficients["neg"], el.coefficients["pos"]),
+                                    offset=offset))
     return out
 
 
@@ -239,16 +264,19 @@ def evaluate(case: Case, snr_db: float | None, *, steady_periods: int, transient
              ) -> dict:
     P = transient + steady_periods
     u, y = record(case, P)
-    y = y.copy()
+    p = len(case.measured)
+    disp = y[:, p:] if case.quantity != "displacement" else None
+    y = y[:, :p].copy()
     if snr_db is not None:
         rng = np.random.default_rng(noise_seed)
         rms = np.sqrt(np.mean(y[transient * case.N:] ** 2, axis=0))
         y += rng.standard_normal(y.shape) * rms * 10 ** (-snr_db / 20)
     names = [f"q{i}" for i in case.measured]
-    basis = basis_of(case)
+    basis = basis_of(case, disp)
     data = prepare_frequency_data(u=u, y=y, sample_rate_hz=case.fs, samples_per_period=case.N,
                                   basis=basis, band_hz=case.proc_hz, transient_periods=transient,
-                                  output_names=names, input_names=("F",), **(data_options or {}))
+                                  output_names=names, input_names=("F",),
+                                  output_quantity=case.quantity, **(data_options or {}))
     dp = f"q{case.force_dof}"
     spread = spread_function(data, basis, driving_point=dp)
 
