@@ -205,7 +205,7 @@ def simulate_sim(case: Case, u: np.ndarray, n_periods: int) -> np.ndarray:
     from daq.sim.integrate import simulate
 
     res = simulate(case.model(), u[:, None], case.fs, periodic=case.N, oversample=20,
-                   quantities=("displacement", case.quantity))
+                   quantities=tuple(dict.fromkeys(("displacement", case.quantity))))
     y = getattr(res, case.quantity)
     if case.quantity != "displacement":  # the static relative positions, given as known
         y = np.concatenate([y, res.displacement], axis=1)

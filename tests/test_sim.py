@@ -326,3 +326,15 @@ def test_corrector_converges_to_round_off_and_warns_on_genuine_failure():
     with pytest.warns(RuntimeWarning, match=r"did not converge in \d+ of .*raise oversample"):
         r = simulate(lumped_model("trilinear"), p, FS, oversample=8, periodic=N, max_iter=2)
     assert r.unconverged_steps > 0
+
+
+def test_a_quantity_asked_twice_is_computed_once():
+    """``quantities`` accumulate per name: a repeated name must not double the output."""
+    from daq.multisine import multisine
+    model = lumped_model("none")
+    u = np.asarray(multisine(256, 64.0, (2, 20), 1.0, n_periods=2, seed=0).signal[0])[:, None]
+    once = simulate(model, u, 64.0, periodic=256, quantities=("displacement",))
+    twice = simulate(model, u, 64.0, periodic=256, quantities=("displacement", "displacement"))
+    assert np.array_equal(once.displacement, twice.displacement)
+    with pytest.raises(ValueError, match="unknown quantities"):
+        simulate(model, u, 64.0, periodic=256, quantities=("jerk",))

@@ -586,6 +586,10 @@ def simulate(model: StructuralModel, force: np.ndarray, sample_rate_hz: float, *
     See the module docstring for the method and its error sources.
     """
     fs = float(sample_rate_hz)
+    quantities = tuple(dict.fromkeys(quantities))  # each once (the outputs accumulate per name)
+    bad = sorted(set(quantities) - {"displacement", "velocity", "acceleration"})
+    if bad:
+        raise ValueError(f"unknown quantities {bad}: use displacement, velocity, acceleration")
     p = np.asarray(force, dtype=float)
     if p.ndim == 1:
         p = p[:, None]
