@@ -166,7 +166,7 @@ def main_bench(argv=None) -> int:
     from replay.cli import parse_orders
 
     orders = parse_orders(args.orders)
-    from replay.service import limit_blas_threads
+    from fnsi_lab.blas import limit_blas_threads
 
     blas = limit_blas_threads(1)  # as `fnsi-lab live/replay` do (--blas-threads 1)
     load = os.getloadavg()[0]

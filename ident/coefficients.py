@@ -333,9 +333,9 @@ def spread_function(data: FrequencyData, basis: Sequence[Nonlinearity], *,
     if not basis or driving_point is None or not np.any(data.excited):
         return None
     f_exc = data.frequencies_hz[np.asarray(data.excited, bool)]
-    try:  # validate the channels once
-        L_names = [nl.location_vector(list(data.output_names)) for nl in basis]
-        del L_names
+    try:  # every channel of every L_a and the driving point must be measured (spec §2.3)
+        for nl in basis:
+            nl.location_vector(list(data.output_names))
         _resolve_driving_points(driving_point, data.input_names, data.output_names)
     except (ChannelError, NotIdentifiableError):
         return None

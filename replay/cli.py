@@ -19,7 +19,7 @@ from typing import Any, Callable
 import numpy as np
 
 from fnsi_lab.errors import ConfigError
-from replay.service import limit_blas_threads
+from fnsi_lab.blas import limit_blas_threads
 
 DEFAULT_ORDERS = "2:40"
 

@@ -1039,7 +1039,3 @@ def config_identifier(config: Any = None, *, truth: Mapping[str, Any] | None = N
                + ", ".join(f"{nl.name} ({nl.kind})" for nl in basis) if basis else "linear")
             + (f", config {config.file}" if config is not None and config.file else ""))
     return identify, what
-
-
-# BLAS threads: see fnsi_lab.blas (re-exported here for the live and replay commands)
-from fnsi_lab.blas import limit_blas_threads  # noqa: E402,F401
