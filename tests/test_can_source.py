@@ -261,7 +261,7 @@ def test_bus_error_reported_and_reconnected(tmp_path: Path, channel: str) -> Non
         with Sender(channel, frames):
             data, _ = read_rows(src, 200)
         assert np.array_equal(data, expected)
-    assert src._bus is None and src._rx_thread is None
+    assert src._bus is None and not src._rx.alive   # bus shut down, receive thread gone
 
 
 def test_queue_overflow_counted(tmp_path: Path, channel: str) -> None:

@@ -1,4 +1,5 @@
-"""Helpers shared by the hardware adapters: row-to-block assembly and the rate check.
+"""Helpers shared by the hardware adapters: row-to-block assembly, the rate check and the
+receive thread.
 
 Hardware delivers one sample row at a time (a CAN frame set, a serial line); the rest of
 fnsi-lab wants fixed-size ``(n_samples, n_channels)`` blocks and a warning when the
@@ -8,10 +9,47 @@ they live here, free of any driver import.
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
+
+
+class ReceiveThread:
+    """The receive thread of an adapter: started by its ``_start``, stopped by its ``_stop``.
+
+    Parameters
+    ----------
+    target : callable
+        The receive loop; it runs until :attr:`stop_event` is set.
+    name : str
+        Thread name (``can-rx``, ``serial-rx``).
+    """
+
+    def __init__(self, target: Callable[[], None], name: str) -> None:
+        self._target = target
+        self._name = name
+        self.stop_event = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def start(self) -> None:
+        """Start a fresh thread (after a previous :meth:`stop`, too)."""
+        self.stop_event.clear()
+        self._thread = threading.Thread(target=self._target, name=self._name, daemon=True)
+        self._thread.start()
+
+    def stop(self, timeout_s: float = 5.0) -> None:
+        """Ask the loop to end and wait for it (idempotent)."""
+        self.stop_event.set()
+        if self._thread is not None:
+            self._thread.join(timeout=timeout_s)
+            self._thread = None
+
+    @property
+    def alive(self) -> bool:
+        """True while the loop runs."""
+        return self._thread is not None and self._thread.is_alive()
 
 
 @dataclass(frozen=True)

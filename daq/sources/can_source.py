@@ -54,7 +54,7 @@ import numpy as np
 from daq.block import Block
 from daq.channels import ChannelInfo
 from daq.source import Source
-from daq.sources._rate import RowEmitter
+from daq.sources._rate import ReceiveThread, RowEmitter
 from fnsi_lab.errors import ConfigError, SourceError
 from fnsi_lab.validate import Section
 
@@ -234,8 +234,8 @@ class CanSource(Source):
         self._bus: Any = None
         self._queue: deque[Any] = deque()
         self._wake = threading.Event()
-        self._stop_rx = threading.Event()
-        self._rx_thread: threading.Thread | None = None
+        self._rx = ReceiveThread(self._receive_loop, "can-rx")
+        self._stop_rx = self._rx.stop_event
         self._rx_overflow = 0          # written by the receive thread only
         self._reopen_failures = 0
         self._overflow_seen = 0
@@ -402,16 +402,10 @@ class CanSource(Source):
     def _start(self) -> None:
         if self._bus is None:
             self._bus = self._open_bus()
-        self._stop_rx.clear()
-        self._rx_thread = threading.Thread(target=self._receive_loop, name="can-rx",
-                                           daemon=True)
-        self._rx_thread.start()
+        self._rx.start()
 
     def _stop(self) -> None:
-        self._stop_rx.set()
-        if self._rx_thread is not None:
-            self._rx_thread.join(timeout=5.0)
-            self._rx_thread = None
+        self._rx.stop()
 
     def _close(self) -> None:
         if self._bus is not None:
@@ -506,7 +500,7 @@ class CanSource(Source):
             self._wake.clear()
             if queue:
                 continue
-            if self._rx_thread is None or not self._rx_thread.is_alive():
+            if not self._rx.alive:
                 return None
             wait = 0.5 if deadline is None else deadline - time.monotonic()
             if wait <= 0:

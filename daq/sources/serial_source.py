@@ -58,7 +58,7 @@ import numpy as np
 from daq.block import Block
 from daq.channels import ChannelInfo
 from daq.source import Source
-from daq.sources._rate import RowEmitter
+from daq.sources._rate import ReceiveThread, RowEmitter
 from fnsi_lab.errors import ConfigError, SourceError
 from fnsi_lab.validate import Section
 
@@ -196,8 +196,8 @@ class SerialSource(Source):
         self._queued_bytes = 0
         self._lock_q = threading.Lock()  # _queued_bytes is updated by two threads
         self._wake = threading.Event()
-        self._stop_rx = threading.Event()
-        self._rx_thread: threading.Thread | None = None
+        self._rx = ReceiveThread(self._receive_loop, "serial-rx")
+        self._stop_rx = self._rx.stop_event
         self._rx_lost = 0
         self._lost_seen = 0
 
@@ -356,16 +356,10 @@ class SerialSource(Source):
                 self._port = self._open()
             except (serial.SerialException, OSError, ValueError) as exc:
                 raise SourceError(f"cannot open serial port {self._url!r}: {exc}") from exc
-        self._stop_rx.clear()
-        self._rx_thread = threading.Thread(target=self._receive_loop, name="serial-rx",
-                                           daemon=True)
-        self._rx_thread.start()
+        self._rx.start()
 
     def _stop(self) -> None:
-        self._stop_rx.set()
-        if self._rx_thread is not None:
-            self._rx_thread.join(timeout=5.0)
-            self._rx_thread = None
+        self._rx.stop()
 
     def _close(self) -> None:
         if self._port is not None:
@@ -457,7 +451,7 @@ class SerialSource(Source):
             self._wake.clear()
             if queue:
                 continue
-            if self._rx_thread is None or not self._rx_thread.is_alive():
+            if not self._rx.alive:
                 return None
             wait = 0.5 if deadline is None else deadline - time.monotonic()
             if wait <= 0:
