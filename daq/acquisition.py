@@ -38,6 +38,27 @@ if TYPE_CHECKING:  # pragma: no cover
 _END = object()
 
 
+def put_drop_oldest(q: "queue.Queue[Any]", item: Any) -> int:
+    """Put ``item`` without ever blocking: when ``q`` is full, drop its oldest entries.
+
+    Returns
+    -------
+    int
+        How many entries were dropped (0 when there was room).
+    """
+    dropped = 0
+    while True:
+        try:
+            q.put_nowait(item)
+            return dropped
+        except queue.Full:
+            try:
+                q.get_nowait()
+                dropped += 1
+            except queue.Empty:  # the consumer emptied it meanwhile
+                pass
+
+
 class Tap:
     """A bounded, drop-oldest queue of blocks for one analysis consumer.
 
@@ -57,16 +78,7 @@ class Tap:
 
     def offer(self, block: Block) -> None:
         """Enqueue without ever blocking (drops and counts the oldest block if full)."""
-        while True:
-            try:
-                self._queue.put_nowait(block)
-                return
-            except queue.Full:
-                try:
-                    self._queue.get_nowait()
-                    self.dropped += 1
-                except queue.Empty:  # consumer emptied it meanwhile
-                    pass
+        self.dropped += put_drop_oldest(self._queue, block)
 
     def close(self) -> None:
         """Signal the end of the stream to the consumer."""

@@ -29,6 +29,7 @@ from typing import Any, Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
+from daq.acquisition import put_drop_oldest
 from daq.block import Block
 from daq.channels import ChannelInfo
 from fnsi_lab.errors import ConfigError
@@ -376,16 +377,7 @@ class IdentService:
 
     def offer(self, block: Block) -> None:
         """Hand over a block without ever blocking (drop-oldest when full, counted)."""
-        while True:
-            try:
-                self._queue.put_nowait(block)
-                return
-            except queue.Full:
-                try:
-                    self._queue.get_nowait()
-                    self.status.dropped_blocks += 1
-                except queue.Empty:
-                    pass
+        self.status.dropped_blocks += put_drop_oldest(self._queue, block)
 
     def finish(self, timeout: float | None = None) -> ServiceStatus:
         """End of input: identify the last snapshot, stop the threads, return the status.
