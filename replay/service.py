@@ -415,16 +415,7 @@ class IdentService:
             self._put_end()
 
     def _put_end(self) -> None:
-        while True:
-            try:
-                self._queue.put_nowait(_END)
-                return
-            except queue.Full:
-                try:
-                    self._queue.get_nowait()
-                    self.status.dropped_blocks += 1
-                except queue.Empty:
-                    pass
+        self.status.dropped_blocks += put_drop_oldest(self._queue, _END)
 
     def _blocks(self) -> Iterable[Block]:
         if self._source is not None:
