@@ -406,6 +406,13 @@ def _common(p: argparse.ArgumentParser, orders: str = DEFAULT_ORDERS,
     p.add_argument("--quiet", action="store_true", help="no status line")
 
 
+def _experiment_arguments(p: argparse.ArgumentParser) -> None:
+    """``--config`` and ``--out`` of the commands that run an experiment (run, live)."""
+    p.add_argument("--config", metavar="EXP.yaml",
+                   help="experiment YAML (default: the packaged simulated SmallSat)")
+    p.add_argument("--out", metavar="FILE.mcap", help="recording (default: the config's output)")
+
+
 def register(subparsers: Any) -> None:
     """Add ``run``, ``live`` and ``replay``."""
     fmt = argparse.RawDescriptionHelpFormatter
@@ -425,9 +432,7 @@ def register(subparsers: Any) -> None:
                "  fnsi-lab run --out smallsat.mcap --rrd smallsat.rrd   # simulated SmallSat\n"
                "  fnsi-lab run --config lumped.yaml --rrd lumped.rrd    # packaged small model\n"
                "  fnsi-lab view smallsat.rrd                            # look at the result\n")
-    p.add_argument("--config", metavar="EXP.yaml",
-                   help="experiment YAML (default: the packaged simulated SmallSat)")
-    p.add_argument("--out", metavar="FILE.mcap", help="recording (default: the config's output)")
+    _experiment_arguments(p)
     p.add_argument("--queue-blocks", type=int, default=1 << 16, metavar="B",
                    help="capacity of the identification queue in blocks (drop-oldest)")
     _common(p, orders="2:60", harmonics=5.0)
@@ -446,9 +451,7 @@ def register(subparsers: Any) -> None:
                "  fnsi-lab live --rrd live.rrd              # simulated SmallSat, real time\n"
                "  fnsi-lab live --fast --spawn              # as fast as possible, native viewer\n"
                "  fnsi-lab live --config rig.yaml --ident rig-ident.yaml --serve-web\n")
-    p.add_argument("--config", metavar="EXP.yaml",
-                   help="experiment YAML (default: the packaged simulated SmallSat)")
-    p.add_argument("--out", metavar="FILE.mcap", help="recording (default: the config's output)")
+    _experiment_arguments(p)
     p.add_argument("--speed", type=float, default=1.0, metavar="X",
                    help="pace a simulated source at X times real time (default 1)")
     p.add_argument("--fast", action="store_true", help="simulated sources: as fast as possible")
