@@ -37,9 +37,9 @@ import can
 import cantools
 import numpy as np
 
-from daq.config import parse_experiment
-from daq.sources.can_source import CanSource
-from daq.sources.serial_source import SerialSource
+from fnsi_lab.daq.config import parse_experiment
+from fnsi_lab.daq.sources.can_source import CanSource
+from fnsi_lab.daq.sources.serial_source import SerialSource
 
 ROOT = Path(__file__).resolve().parent.parent
 DBC = ROOT / "daq" / "data" / "example_can.dbc"

@@ -35,10 +35,10 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from ident import fnsi  # noqa: E402
-from ident.basis import Nonlinearity  # noqa: E402
-from ident.coefficients import nonlinear_coefficients, summarize_coefficients  # noqa: E402
-from ident.periodic import FrequencyData, prepare_frequency_data  # noqa: E402
+from fnsi_lab.ident import fnsi  # noqa: E402
+from fnsi_lab.ident.basis import Nonlinearity  # noqa: E402
+from fnsi_lab.ident.coefficients import nonlinear_coefficients, summarize_coefficients  # noqa: E402
+from fnsi_lab.ident.periodic import FrequencyData, prepare_frequency_data  # noqa: E402
 
 RESULTS = Path(__file__).with_name("RESULTS.md")
 SECTION = "## FNSI core"
@@ -46,8 +46,8 @@ SECTION = "## FNSI core"
 
 def smallsat_problem(periods: int = 6, transient: int = 5, snr_noise: float = 0.0, seed: int = 0):
     """Simulated SmallSat data -> (FrequencyData, basis, truth, description)."""
-    from daq.multisine import excited_lines, multisine
-    from daq.sim import simulate, smallsat_model
+    from fnsi_lab.daq.multisine import excited_lines, multisine
+    from fnsi_lab.daq.sim import simulate, smallsat_model
     model = smallsat_model()
     fs, N = 1000.0, 8192
     u = np.asarray(multisine(N, fs, (5, 50), 100.0, n_periods=periods, seed=seed).signal).reshape(-1, 1)

@@ -33,11 +33,11 @@ from pathlib import Path
 
 import numpy as np
 
-from daq.acquisition import Tap, acquire
-from daq.channels import ChannelInfo
-from daq.multisine import multisine
-from daq.recording import Recorder
-from daq.sources.array_source import ArraySource
+from fnsi_lab.daq.acquisition import Tap, acquire
+from fnsi_lab.daq.channels import ChannelInfo
+from fnsi_lab.daq.multisine import multisine
+from fnsi_lab.daq.recording import Recorder
+from fnsi_lab.daq.sources.array_source import ArraySource
 
 FS, N, N_OUT = 1000.0, 8192, 39
 
@@ -75,10 +75,10 @@ def latency(path: Path, identify, speed: float, rrd: Path) -> dict:
     """Paced replay of ``path`` (as a live source) -> Tap -> service -> Rerun (.rrd)."""
     import rerun as rr
 
-    from replay.cli import LiveRun
-    from replay.service import IdentService
-    from replay.source import ReplaySource
-    from viewer.blueprint import blueprint
+    from fnsi_lab.replay.cli import LiveRun
+    from fnsi_lab.replay.service import IdentService
+    from fnsi_lab.replay.source import ReplaySource
+    from fnsi_lab.viewer.blueprint import blueprint
 
     src = ReplaySource(path, speed=speed)
     rec = rr.RecordingStream("fnsi-lab-bench", recording_id="bench")
@@ -109,8 +109,8 @@ def smallsat_recording(path: Path, steady_periods: int) -> str | None:
     from dataclasses import replace
 
     try:
-        from daq.acquisition import record_experiment
-        from daq.config import load_experiment
+        from fnsi_lab.daq.acquisition import record_experiment
+        from fnsi_lab.daq.config import load_experiment
 
         config = load_experiment(None)
     except Exception as exc:  # the simulated SmallSat is not available in this checkout
@@ -128,7 +128,7 @@ def smallsat_recording(path: Path, steady_periods: int) -> str | None:
 def replay_speeds(path: Path, orders, tmp: Path, repeat: int) -> dict:
     """Signal seconds per wall second of the replay stages."""
     from fnsi_lab.cli import main
-    from replay.source import ReplaySource
+    from fnsi_lab.replay.source import ReplaySource
 
     best_src = np.inf
     n_samples = 0
@@ -163,7 +163,7 @@ def main_bench(argv=None) -> int:
                     help="pacing of the latency run (1 = real time, the honest figure)")
     ap.add_argument("--results", action="store_true", help="append to bench/RESULTS.md")
     args = ap.parse_args(argv)
-    from replay.cli import parse_orders
+    from fnsi_lab.replay.cli import parse_orders
 
     orders = parse_orders(args.orders)
     from fnsi_lab.blas import limit_blas_threads
@@ -172,9 +172,9 @@ def main_bench(argv=None) -> int:
     load = os.getloadavg()[0]
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
-        from daq.recording.reader import read_periodic
-        from replay.service import config_identifier
-        from replay.source import ReplaySource
+        from fnsi_lab.daq.recording.reader import read_periodic
+        from fnsi_lab.replay.service import config_identifier
+        from fnsi_lab.replay.source import ReplaySource
 
         path = tmp / "bench.mcap"
         source_note = None if args.data == "modal" else smallsat_recording(path, args.periods)

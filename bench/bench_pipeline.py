@@ -33,8 +33,8 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from ident import auto  # noqa: E402
-from ident.periodic import FrequencyData  # noqa: E402
+from fnsi_lab.ident import auto  # noqa: E402
+from fnsi_lab.ident.periodic import FrequencyData  # noqa: E402
 
 TABLE1 = [(10.67, 5.34), (11.01, 5.58), (28.26, 9.79), (28.41, 10.62), (30.11, 7.03),
           (30.52, 15.54), (31.59, 2.07), (32.62, 2.25), (37.47, 2.27), (38.26, 2.33),

@@ -27,9 +27,9 @@ from pathlib import Path
 
 import numpy as np
 
-from daq.block import Block
-from daq.channels import ChannelInfo
-from daq.recording import Recorder, open_recording
+from fnsi_lab.daq.block import Block
+from fnsi_lab.daq.channels import ChannelInfo
+from fnsi_lab.daq.recording import Recorder, open_recording
 
 
 @dataclass

@@ -26,10 +26,10 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from daq.config import load_experiment  # noqa: E402
-from daq.multisine import multisine  # noqa: E402
-from daq.sim.integrate import lowpass_decimate_periodic, newmark, simulate  # noqa: E402
-from daq.sim.smallsat import TABLE1, smallsat_model  # noqa: E402
+from fnsi_lab.daq.config import load_experiment  # noqa: E402
+from fnsi_lab.daq.multisine import multisine  # noqa: E402
+from fnsi_lab.daq.sim.integrate import lowpass_decimate_periodic, newmark, simulate  # noqa: E402
+from fnsi_lab.daq.sim.smallsat import TABLE1, smallsat_model  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 

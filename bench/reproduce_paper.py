@@ -39,9 +39,9 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from ident import auto  # noqa: E402
-from ident.basis import Nonlinearity  # noqa: E402
-from ident.periodic import prepare_frequency_data  # noqa: E402
+from fnsi_lab.ident import auto  # noqa: E402
+from fnsi_lab.ident.basis import Nonlinearity  # noqa: E402
+from fnsi_lab.ident.periodic import prepare_frequency_data  # noqa: E402
 
 OUT = ROOT / "bench" / "out"
 IMG = ROOT / "docs" / "img"
@@ -71,9 +71,9 @@ PAPER = {
 def _simulate(level_n: float, nonlinear: bool, seed: int = 1, periods: int = P_TOT):
     """Periodic SmallSat record (cached): force (P N,), displacements (P N, 39), names."""
     import hashlib
-    from daq.multisine import multisine
-    from daq.sim.integrate import simulate
-    from daq.sim.smallsat import smallsat_model
+    from fnsi_lab.daq.multisine import multisine
+    from fnsi_lab.daq.sim.integrate import simulate
+    from fnsi_lab.daq.sim.smallsat import smallsat_model
     model = smallsat_model(nonlinear=nonlinear)
     h = hashlib.sha1()
     for a in (model.mass, model.damping, model.stiffness, model.force_matrix):
@@ -104,7 +104,7 @@ def _simulate(level_n: float, nonlinear: bool, seed: int = 1, periods: int = P_T
 
 def nc2z_basis():
     """Trilinear NC2-Z basis (clearances known, as in the paper), relative W - B."""
-    from daq.sim.smallsat import DEFAULT_CLEARANCES
+    from fnsi_lab.daq.sim.smallsat import DEFAULT_CLEARANCES
     return [Nonlinearity(name="NC2-Z", kind="trilinear", channels={"NC2W-Z": 1.0, "NC2B-Z": -1.0},
                          clearances=tuple(DEFAULT_CLEARANCES["NC2-Z"]))]
 
@@ -156,7 +156,7 @@ def coefficient_curves(model, data, band=EXC_BAND):
 
 def coefficient_summary(model, data, truth=None):
     """Table-2 statistics on the excited band: mean Re, error %, std Re, log10|Re/Im|, LS."""
-    from daq.sim.smallsat import NC2Z_CONTACT
+    from fnsi_lab.daq.sim.smallsat import NC2Z_CONTACT
     truth = truth or NC2Z_CONTACT
     f, curves = coefficient_curves(model, data)
     out = {}
@@ -176,7 +176,7 @@ def make_coefficients_callback(data):
 
 def make_spread(data):
     """Coefficient consistency of the NC2-Z basis (the pipeline's order-selection gate)."""
-    from ident.coefficients import spread_function
+    from fnsi_lab.ident.coefficients import spread_function
     return spread_function(data, nc2z_basis(), driving_point=DRIVE)
 
 
@@ -205,7 +205,7 @@ def physical_recovery(res):
 
 # ------------------------------------------------------------------------------ truth
 def table1():
-    from daq.sim.smallsat import TABLE1
+    from fnsi_lab.daq.sim.smallsat import TABLE1
     return [(f, z) for f, z, _ in TABLE1]
 
 
@@ -302,7 +302,7 @@ def fig_stab(res, path, title, physical_freqs=None, orders_marked=()):
 
 def fig_coeffs(curves_by_label, path, title):
     plt = _plt()
-    from daq.sim.smallsat import NC2Z_CONTACT
+    from fnsi_lab.daq.sim.smallsat import NC2Z_CONTACT
     fig, axes = plt.subplots(2, 1, figsize=(6.5, 5), sharex=True)
     for ax, side in zip(axes, ("pos", "neg")):
         for label, (f, cur) in curves_by_label.items():
@@ -411,7 +411,7 @@ def run(snr_db=None, figures=True, steady_periods=None):
     }
     # the FNSI core at order 10 as `fnsi-lab ident --order 10` runs it (decomposition up to
     # order 10, D estimated), with the default and the bilinear time base
-    from ident import fnsi
+    from fnsi_lab.ident import fnsi
     val = {}
     for tb in ("band-limited", "bilinear"):
         dtb = d3 if tb == d3.time_base else smallsat_frequency_data("100N", 3, time_base=tb, **kw)[0]
@@ -441,7 +441,7 @@ def run(snr_db=None, figures=True, steady_periods=None):
     # 39 channels at order 38 (the paper's): MDI H2 vs Hinf, confusion, reduction
     r38 = identify(d39, reduce_at=38)
     md = r38.modal_dominancy
-    from ident.mdi import largest_gap_threshold
+    from fnsi_lab.ident.mdi import largest_gap_threshold
     thr_inf = largest_gap_threshold(md.values["hinf"], candidates=r38.candidates)
     truth = np.array([is_physical_truth(f, z) for f, z in zip(md.frequency_hz, md.damping_ratio)])
     tab_h2, rows_h2 = _confusion(r38, md.values["h2"], r38.physical)
@@ -495,7 +495,7 @@ def run(snr_db=None, figures=True, steady_periods=None):
                 d39.frequencies_hz[exn], h_nl, IMG / f"fig11_frf{sfx}.png")
     # are the modes in the models at all? Table-1 modes within 0.5 % / 5 % among the in-band
     # poles of the full 39-channel models, orders 20..80 (no classification involved)
-    from ident import fnsi
+    from fnsi_lab.ident import fnsi
     dec = fnsi.subspace_decomposition(d39, max_order=80)
     present = {}
     for n in range(20, 81, 12):

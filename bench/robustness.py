@@ -40,19 +40,19 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from daq.multisine import multisine  # noqa: E402
-from daq.sim.model import StructuralModel  # noqa: E402
-from daq.sim.nonlinear import NonlinearElement  # noqa: E402
-from ident import auto  # noqa: E402
-from ident.basis import Nonlinearity  # noqa: E402
-from ident.coefficients import nonlinear_coefficients, spread_function, summarize_coefficients  # noqa: E402
-from ident.periodic import prepare_frequency_data  # noqa: E402
+from fnsi_lab.daq.multisine import multisine  # noqa: E402
+from fnsi_lab.daq.sim.model import StructuralModel  # noqa: E402
+from fnsi_lab.daq.sim.nonlinear import NonlinearElement  # noqa: E402
+from fnsi_lab.ident import auto  # noqa: E402
+from fnsi_lab.ident.basis import Nonlinearity  # noqa: E402
+from fnsi_lab.ident.coefficients import nonlinear_coefficients, spread_function, summarize_coefficients  # noqa: E402
+from fnsi_lab.ident.periodic import prepare_frequency_data  # noqa: E402
 
 
 # ------------------------------------------------------------------------------ structures
 def chain(masses, springs, *, alpha=2.0, beta=1e-4, dashpot=(0, 1, 3.0)):
     """Grounded chain: M, C (Rayleigh + one dashpot: non-proportional), K."""
-    from daq.sim.lumped import lumped_model
+    from fnsi_lab.daq.sim.lumped import lumped_model
     m = lumped_model("none", masses=masses, springs=springs, mass_damping=alpha,
                      stiffness_damping=beta, dashpot=dashpot[2], dashpot_dofs=dashpot[:2])
     return m.mass, m.damping, m.stiffness
@@ -202,7 +202,7 @@ def simulate_ode(case: Case, u: np.ndarray, n_periods: int) -> np.ndarray:
 
 
 def simulate_sim(case: Case, u: np.ndarray, n_periods: int) -> np.ndarray:
-    from daq.sim.integrate import simulate
+    from fnsi_lab.daq.sim.integrate import simulate
 
     res = simulate(case.model(), u[:, None], case.fs, periodic=case.N, oversample=20,
                    quantities=tuple(dict.fromkeys(("displacement", case.quantity))))

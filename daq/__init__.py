@@ -14,12 +14,12 @@ bounded queues to the MCAP recorder (:mod:`daq.recording`) and to any analysis t
 Importing this package never imports an optional driver (see :mod:`daq.registry`).
 """
 
-from daq.block import Block
-from daq.channels import ChannelInfo
-from daq.config import ExcitationConfig, ExperimentConfig, SourceConfig, load_experiment
-from daq.multisine import Multisine, multisine
-from daq.registry import make_source, source_class
-from daq.source import Source, SourceEvent, SourceStats
+from fnsi_lab.daq.block import Block
+from fnsi_lab.daq.channels import ChannelInfo
+from fnsi_lab.daq.config import ExcitationConfig, ExperimentConfig, SourceConfig, load_experiment
+from fnsi_lab.daq.multisine import Multisine, multisine
+from fnsi_lab.daq.registry import make_source, source_class
+from fnsi_lab.daq.source import Source, SourceEvent, SourceStats
 
 __all__ = [
     "Block", "ChannelInfo", "ExcitationConfig", "ExperimentConfig", "SourceConfig",

@@ -28,12 +28,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Iterator, Sequence
 
-from daq.block import Block
-from daq.source import Source, SourceEvent
+from fnsi_lab.daq.block import Block
+from fnsi_lab.daq.source import Source, SourceEvent
 from fnsi_lab import __version__
 
 if TYPE_CHECKING:  # pragma: no cover
-    from daq.config import ExperimentConfig
+    from fnsi_lab.daq.config import ExperimentConfig
 
 _END = object()
 
@@ -342,8 +342,8 @@ def record_experiment(config: "ExperimentConfig", output: str | os.PathLike[str]
     source : Source, optional
         Use this source instead of building one from ``config`` (it is closed here).
     """
-    from daq.recording.writer import Recorder
-    from daq.registry import make_source
+    from fnsi_lab.daq.recording.writer import Recorder
+    from fnsi_lab.daq.registry import make_source
 
     path = Path(output if output is not None else config.output)
     if source is None:

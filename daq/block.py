@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from daq.channels import ChannelInfo
+from fnsi_lab.daq.channels import ChannelInfo
 
 
 @dataclass(frozen=True, eq=False)

@@ -11,8 +11,8 @@ from fnsi_lab.progress import Progress
 
 
 def _acquire(args: argparse.Namespace) -> int:
-    from daq.acquisition import record_experiment
-    from daq.config import load_experiment
+    from fnsi_lab.daq.acquisition import record_experiment
+    from fnsi_lab.daq.config import load_experiment
 
     config = load_experiment(args.config)
     output = args.out or config.output
@@ -33,13 +33,13 @@ def _acquire(args: argparse.Namespace) -> int:
                                on_block=on_block, stop=None)
     print(report.summary())
     if not args.no_info:
-        from daq.recording.info import format_info, recording_info
+        from fnsi_lab.daq.recording.info import format_info, recording_info
         print(format_info(recording_info(output)))
     return 0
 
 
 def _info(args: argparse.Namespace) -> int:
-    from daq.recording.info import format_info, recording_info
+    from fnsi_lab.daq.recording.info import format_info, recording_info
 
     info = recording_info(args.file)
     if args.json:
@@ -60,7 +60,7 @@ def _json_default(obj: Any) -> Any:
 
 
 def _recover(args: argparse.Namespace) -> int:
-    from daq.recording.recover import recover
+    from fnsi_lab.daq.recording.recover import recover
 
     report = recover(args.broken, args.out)
     print(report.summary())

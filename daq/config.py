@@ -31,7 +31,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, Literal, Mapping
 
-from daq.channels import QUANTITIES, ChannelInfo
+from fnsi_lab.daq.channels import QUANTITIES, ChannelInfo
 from fnsi_lab.errors import ConfigError
 from fnsi_lab.validate import Section, load_yaml
 
@@ -236,7 +236,7 @@ def parse_experiment(data: Any, *, file: str | None = None, text: str = "") -> E
     )
     top.finish()
     # Fail early on an unknown source kind (message lists the known ones).
-    from daq.registry import SOURCES
+    from fnsi_lab.daq.registry import SOURCES
     if kind not in SOURCES:
         raise ConfigError(f"unknown source kind {kind!r}", file=file, field="source.kind",
                           fix=f"use one of {sorted(SOURCES)}")

@@ -13,16 +13,16 @@ from typing import TYPE_CHECKING, Any
 from fnsi_lab.errors import ConfigError
 
 if TYPE_CHECKING:  # pragma: no cover
-    from daq.config import ExperimentConfig
-    from daq.source import Source
+    from fnsi_lab.daq.config import ExperimentConfig
+    from fnsi_lab.daq.source import Source
 
 #: source kind -> (module, class name)
 SOURCES: dict[str, tuple[str, str]] = {
-    "simulated": ("daq.sim.source", "SimulatedSource"),
-    "smallsat": ("daq.sim.source", "SimulatedSource"),
-    "can": ("daq.sources.can_source", "CanSource"),
-    "serial": ("daq.sources.serial_source", "SerialSource"),
-    "replay": ("replay.source", "ReplaySource"),
+    "simulated": ("fnsi_lab.daq.sim.source", "SimulatedSource"),
+    "smallsat": ("fnsi_lab.daq.sim.source", "SimulatedSource"),
+    "can": ("fnsi_lab.daq.sources.can_source", "CanSource"),
+    "serial": ("fnsi_lab.daq.sources.serial_source", "SerialSource"),
+    "replay": ("fnsi_lab.replay.source", "ReplaySource"),
 }
 
 

@@ -17,8 +17,8 @@ from typing import Any, ClassVar, Iterator, Sequence
 
 import numpy as np
 
-from daq.block import Block
-from daq.channels import ChannelInfo
+from fnsi_lab.daq.block import Block
+from fnsi_lab.daq.channels import ChannelInfo
 from fnsi_lab.errors import ConfigError, SourceError
 
 

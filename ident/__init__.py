@@ -31,7 +31,7 @@ Modules
 ``ident`` depends on numpy, scipy and :mod:`fnsi_lab.errors`/:mod:`fnsi_lab.validate` only.
 """
 
-from ident.errors import (ChannelError, IdentError, IdentWarning,  # noqa: F401
+from fnsi_lab.ident.errors import (ChannelError, IdentError, IdentWarning,  # noqa: F401
                           NotIdentifiableError)
 
 __all__ = ["IdentError", "ChannelError", "NotIdentifiableError", "IdentWarning"]

@@ -30,10 +30,10 @@ import numpy as np
 import scipy.linalg as sla
 
 from fnsi_lab.progress import Progress
-from ident import mdi as mdi_mod
-from ident import order_selection as osel
-from ident import stabilisation as stab
-from ident.errors import IdentError
+from fnsi_lab.ident import mdi as mdi_mod
+from fnsi_lab.ident import order_selection as osel
+from fnsi_lab.ident import stabilisation as stab
+from fnsi_lab.ident.errors import IdentError
 
 #: Policies for the poles outside the band of interest (:attr:`AutoOptions.out_of_band`).
 OUT_OF_BAND: tuple[str, ...] = ("keep", "stabilised", "drop")
@@ -238,7 +238,7 @@ def modal_form(model):
     c_hat_d, b_hat_d : complex ndarray, shapes (p, n), (n, m_e)
         ``C_d Phi`` and ``Phi^-1 B_d``.
     """
-    from ident import fnsi
+    from fnsi_lab.ident import fnsi
     mu, phi, _ = fnsi._dt_modal(model)
     lam = np.asarray(model.poles.eigenvalues)
     return (mu, lam, model.c_c @ phi, np.linalg.solve(phi, model.b_c.astype(complex)),
@@ -355,7 +355,7 @@ def _model_at_order_fast(decomp, data, order, *, d_zero=False, weighted_bd=True)
     ``A`` and ``C`` always come from ``decomp`` (weighted SVD if it was). ``B``, ``D`` use the
     fast unweighted routine unless the decomposition is weighted and ``weighted_bd``.
     """
-    from ident import fnsi
+    from fnsi_lab.ident import fnsi
     if decomp.weighted and weighted_bd:
         return fnsi.model_at_order(decomp, data, order, d_zero=d_zero)
     n = int(order)
@@ -729,8 +729,8 @@ def identify_auto(data, options: AutoOptions | dict | None = None, *,
     Spec §3 (IC with the exact frequency-domain shortcut), §4 (stabilisation), §5 (MDI),
     §6 (reduction), §7 (threshold), §8.3 and §8.5 (band choices, confidence).
     """
-    from ident import fnsi
-    from ident.reduction import reduce_model
+    from fnsi_lab.ident import fnsi
+    from fnsi_lab.ident.reduction import reduce_model
 
     if options is None:
         options = AutoOptions()
@@ -973,7 +973,7 @@ def identify_auto(data, options: AutoOptions | dict | None = None, *,
 # --------------------------------------------------------------------------------------
 def _parse_auto_section(sec, key):
     """``auto:`` section of the ident YAML -> :class:`AutoOptions` (registered in config)."""
-    from ident.errors import IdentConfigError
+    from fnsi_lab.ident.errors import IdentConfigError
     raw = sec.raw(key, None)
     if raw is None:
         return AutoOptions()
@@ -990,7 +990,7 @@ def _parse_auto_section(sec, key):
 
 def _register_config_section():
     try:
-        from ident import config as _cfg
+        from fnsi_lab.ident import config as _cfg
     except ImportError:  # pragma: no cover - config is part of the core
         return
     _cfg.EXTRA_SECTIONS.setdefault("auto", _parse_auto_section)
@@ -1030,8 +1030,8 @@ def run_cli(args, session):
     """
     if not getattr(args, "auto", False):
         return None
-    from ident import cli as core_cli
-    from ident.coefficients import nonlinear_coefficients, summarize_coefficients
+    from fnsi_lab.ident import cli as core_cli
+    from fnsi_lab.ident.coefficients import nonlinear_coefficients, summarize_coefficients
 
     t0 = time.perf_counter()
     cfg = session.config
@@ -1047,7 +1047,7 @@ def run_cli(args, session):
                                          driving_point=cfg.driving_points or None)
         return [s.to_dict() for s in summarize_coefficients(spectra)]
 
-    from ident.coefficients import spread_function
+    from fnsi_lab.ident.coefficients import spread_function
 
     progress = Progress(len(orders), "FNSI orders", enabled=not args.quiet and args.json_out != "-")
     spread = spread_function(session.data, cfg.nonlinearities,

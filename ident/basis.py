@@ -38,7 +38,7 @@ from typing import Literal, Mapping, Sequence
 
 import numpy as np
 
-from ident.errors import ChannelError, IdentError
+from fnsi_lab.ident.errors import ChannelError, IdentError
 
 Kind = Literal["polynomial", "trilinear", "bilinear", "quadratic_damping", "coulomb"]
 KINDS: tuple[str, ...] = ("polynomial", "trilinear", "bilinear", "quadratic_damping", "coulomb")

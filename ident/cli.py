@@ -26,13 +26,13 @@ from typing import Any
 
 import numpy as np
 
-from ident.coefficients import CoefficientSummary, nonlinear_coefficients, summarize_coefficients
-from ident.config import IdentConfig, load_ident_config
-from ident.errors import IdentError, IdentWarning
-from ident.fnsi import (StateSpaceModel, SubspaceDecomposition, model_at_order,
+from fnsi_lab.ident.coefficients import CoefficientSummary, nonlinear_coefficients, summarize_coefficients
+from fnsi_lab.ident.config import IdentConfig, load_ident_config
+from fnsi_lab.ident.errors import IdentError, IdentWarning
+from fnsi_lab.ident.fnsi import (StateSpaceModel, SubspaceDecomposition, model_at_order,
                         steady_state_output, subspace_decomposition)
-from ident.io import IdentInput, load_input, select_channels
-from ident.periodic import FrequencyData, prepare_frequency_data
+from fnsi_lab.ident.io import IdentInput, load_input, select_channels
+from fnsi_lab.ident.periodic import FrequencyData, prepare_frequency_data
 
 EXAMPLES = """\
 examples:
@@ -48,9 +48,9 @@ y (n_samples, n_outputs), fs, optional N, channels, input_channels (see docs/ide
 def _robust_module():
     """``ident.auto`` if it exists (robust pipeline hooks), else None."""
     try:
-        return importlib.import_module("ident.auto")
+        return importlib.import_module("fnsi_lab.ident.auto")
     except ModuleNotFoundError as exc:
-        if exc.name == "ident.auto":
+        if exc.name == "fnsi_lab.ident.auto":
             return None
         raise
 
@@ -147,7 +147,7 @@ def _config_path(name: str) -> Path:
     """``name`` as given, or the packaged example of that name when no such file exists."""
     path = Path(name)
     if not path.exists() and path.parent == Path("."):
-        from ident.config import packaged_config
+        from fnsi_lab.ident.config import packaged_config
 
         try:
             return packaged_config(name)

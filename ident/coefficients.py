@@ -17,10 +17,10 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from ident.basis import Nonlinearity, coefficient_names
-from ident.errors import ChannelError, NotIdentifiableError
-from ident.fnsi import StateSpaceModel, frf
-from ident.periodic import FrequencyData
+from fnsi_lab.ident.basis import Nonlinearity, coefficient_names
+from fnsi_lab.ident.errors import ChannelError, NotIdentifiableError
+from fnsi_lab.ident.fnsi import StateSpaceModel, frf
+from fnsi_lab.ident.periodic import FrequencyData
 
 __all__ = ["CoefficientSpectra", "CoefficientSummary", "nonlinear_coefficients",
            "summarize_coefficients", "coefficient_spread", "spread_function"]

@@ -38,9 +38,9 @@ from typing import Any, Callable
 
 from fnsi_lab.errors import ConfigError
 from fnsi_lab.validate import Section, load_yaml
-from ident.basis import KINDS, Nonlinearity
-from ident.errors import IdentConfigError, IdentError
-from ident.periodic import OUTPUT_QUANTITIES
+from fnsi_lab.ident.basis import KINDS, Nonlinearity
+from fnsi_lab.ident.errors import IdentConfigError, IdentError
+from fnsi_lab.ident.periodic import OUTPUT_QUANTITIES
 
 #: Top-level key -> parser(Section of the whole file, key) -> value stored in ``extra[key]``.
 EXTRA_SECTIONS: dict[str, Callable[[Section, str], Any]] = {}

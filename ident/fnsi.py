@@ -21,8 +21,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg as sla
 
-from ident.errors import IdentError
-from ident.periodic import FrequencyData, prepare_frequency_data  # noqa: F401  (re-export)
+from fnsi_lab.ident.errors import IdentError
+from fnsi_lab.ident.periodic import FrequencyData, prepare_frequency_data  # noqa: F401  (re-export)
 
 __all__ = ["FrequencyData", "prepare_frequency_data", "SubspaceDecomposition", "Poles",
            "StateSpaceModel", "subspace_decomposition", "default_block_rows", "state_matrices",

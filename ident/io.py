@@ -21,8 +21,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ident.errors import ChannelError, IdentDataError, IdentError
-from ident.periodic import OUTPUT_QUANTITIES, as_periodic
+from fnsi_lab.ident.errors import ChannelError, IdentDataError, IdentError
+from fnsi_lab.ident.periodic import OUTPUT_QUANTITIES, as_periodic
 
 
 @dataclass(frozen=True, eq=False)
@@ -118,7 +118,7 @@ def _from_arrays(arrays: dict, path: str, samples_per_period: int | None) -> Ide
 
 def _from_mcap(path: str, samples_per_period: int | None) -> IdentInput:
     try:
-        from daq.recording.reader import read_periodic
+        from fnsi_lab.daq.recording.reader import read_periodic
     except ImportError as exc:  # pragma: no cover - daq is part of the install
         raise IdentDataError(f"{path}: cannot read MCAP ({exc})") from None
     rec = read_periodic(path, samples_per_period)

@@ -31,7 +31,7 @@ from typing import Literal, Sequence
 
 import numpy as np
 
-from ident.errors import IdentError
+from fnsi_lab.ident.errors import IdentError
 
 MdiNorm = Literal["h2", "seed", "h2_single", "hinf", "hinf_band"]
 MDI_NORMS: tuple[str, ...] = ("h2", "seed", "h2_single", "hinf", "hinf_band")

@@ -35,7 +35,7 @@ from typing import Literal, Sequence
 
 import numpy as np
 
-from ident.errors import IdentError
+from fnsi_lab.ident.errors import IdentError
 
 Criterion = Literal["seed", "aic", "mdl"]
 CRITERIA: tuple[str, ...] = ("seed", "aic", "mdl")

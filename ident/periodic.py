@@ -16,8 +16,8 @@ from typing import Any, Literal, Sequence
 
 import numpy as np
 
-from ident.basis import Nonlinearity, coefficient_names, evaluate_basis
-from ident.errors import IdentError, IdentWarning
+from fnsi_lab.ident.basis import Nonlinearity, coefficient_names, evaluate_basis
+from fnsi_lab.ident.errors import IdentError, IdentWarning
 
 OutputQuantity = Literal["displacement", "velocity", "acceleration"]
 OUTPUT_QUANTITIES: tuple[str, ...] = ("displacement", "velocity", "acceleration")

@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg as sla
 
-from ident.errors import IdentError
+from fnsi_lab.ident.errors import IdentError
 
 __all__ = ["complete_pairs", "restrict_to_eigenvalues", "reduce_model"]
 
@@ -133,7 +133,7 @@ def reduce_model(model, data, keep, *, d_zero: bool = False, weighted: bool = Tr
     Seed Eq. 11-12 with the real Schur restriction of spec §6. ``c_a``, the underlying
     linear FRF and the coefficient summary follow from the returned model.
     """
-    from ident import fnsi  # the core: imported late so the pure parts need no core
+    from fnsi_lab.ident import fnsi  # the core: imported late so the pure parts need no core
 
     keep = np.asarray(keep, bool)
     mu = np.asarray(model.poles.discrete_eigenvalues, complex)

@@ -30,7 +30,7 @@ from typing import Sequence
 
 import numpy as np
 
-from ident.errors import IdentError
+from fnsi_lab.ident.errors import IdentError
 
 STAB_CLASSES: tuple[str, ...] = ("new", "frequency", "damping", "mode", "stable")
 

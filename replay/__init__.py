@@ -15,9 +15,9 @@ __all__ = ["ReplaySource", "IdentService"]
 
 def __getattr__(name: str):  # lazy: the registry imports replay.source on demand only
     if name == "ReplaySource":
-        from replay.source import ReplaySource
+        from fnsi_lab.replay.source import ReplaySource
         return ReplaySource
     if name == "IdentService":
-        from replay.service import IdentService
+        from fnsi_lab.replay.service import IdentService
         return IdentService
     raise AttributeError(name)

@@ -49,14 +49,14 @@ def make_identifier(args: argparse.Namespace, metadata: dict[str, Any],
     points, orders) drives the robust pipeline; without it, the excited band is processed
     and a simulated recording's own nonlinear elements (its ``truth``) are the basis.
     """
-    from replay.service import config_identifier, frf_identifier
+    from fnsi_lab.replay.service import config_identifier, frf_identifier
 
     if getattr(args, "method", "auto") == "frf":
         return frf_identifier, "nonparametric FRF (fast)"
     orders = parse_orders(getattr(args, "orders", DEFAULT_ORDERS) or DEFAULT_ORDERS)
     config = None
     if getattr(args, "ident", None):
-        from ident.config import load_ident_config, packaged_config
+        from fnsi_lab.ident.config import load_ident_config, packaged_config
 
         path = Path(args.ident)
         if not path.exists() and path.parent == Path("."):
@@ -85,7 +85,7 @@ class LiveRun:
 
     def __init__(self, rec: Any, channels: Any, *, quiet: bool = False, decimation: int = 1,
                  file_path: Path | None = None, batch_s: float = 0.5) -> None:
-        from viewer import log as vlog
+        from fnsi_lab.viewer import log as vlog
 
         self.rec = rec
         self.vlog = vlog
@@ -132,7 +132,7 @@ class LiveRun:
 
     # called in the identifier thread
     def on_update(self, update: Any) -> None:
-        from replay.service import AutoIdentification, FrfResult, auto_view
+        from fnsi_lab.replay.service import AutoIdentification, FrfResult, auto_view
 
         if isinstance(update.result, AutoIdentification):
             view = auto_view(update)
@@ -190,8 +190,8 @@ class LiveRun:
 
 def frf_view(update: Any) -> dict[str, Any]:
     """View dict of a nonparametric :class:`replay.service.FrfResult` update."""
-    from replay.service import driving_point
-    from viewer.log import summary_markdown
+    from fnsi_lab.replay.service import driving_point
+    from fnsi_lab.viewer.log import summary_markdown
 
     res = update.result
     dp = driving_point(update.record.output_channels, update.record.input_channels)
@@ -202,7 +202,7 @@ def frf_view(update: Any) -> dict[str, Any]:
 
 def format_table(update: Any) -> str:
     """Plain-text result table (the paper's Table 2 layout) of the last update."""
-    from replay.service import AutoIdentification, mode_table, summary_rows
+    from fnsi_lab.replay.service import AutoIdentification, mode_table, summary_rows
 
     if update is None:
         return "no identification: not enough steady-state periods were received"
@@ -244,7 +244,7 @@ def _finish_report(run: LiveRun, service: Any, sinks: Any, wall_s: float) -> Non
 
 def _service_for(channels: Any, rate: float, metadata: dict[str, Any], identify: Callable,
                  run: LiveRun, args: argparse.Namespace) -> Any:
-    from replay.service import IdentService
+    from fnsi_lab.replay.service import IdentService
 
     extra = {}
     if getattr(args, "steady_tolerance", None) is not None:
@@ -259,9 +259,9 @@ def _service_for(channels: Any, rate: float, metadata: dict[str, Any], identify:
 
 # ---------------------------------------------------------------------------- replay
 def _cmd_replay(args: argparse.Namespace) -> int:
-    from replay.source import ReplaySource
-    from viewer.blueprint import blueprint
-    from viewer.cli import close_stream, open_stream
+    from fnsi_lab.replay.source import ReplaySource
+    from fnsi_lab.viewer.blueprint import blueprint
+    from fnsi_lab.viewer.cli import close_stream, open_stream
 
     if args.blas_threads > 0:
         limit_blas_threads(args.blas_threads)
@@ -318,11 +318,11 @@ def _cmd_replay(args: argparse.Namespace) -> int:
 
 # ---------------------------------------------------------------------------- live
 def _cmd_live(args: argparse.Namespace) -> int:
-    from daq.acquisition import Tap, recording_metadata, record_experiment
-    from daq.config import load_experiment
-    from daq.registry import make_source
-    from viewer.blueprint import blueprint
-    from viewer.cli import close_stream, open_stream
+    from fnsi_lab.daq.acquisition import Tap, recording_metadata, record_experiment
+    from fnsi_lab.daq.config import load_experiment
+    from fnsi_lab.daq.registry import make_source
+    from fnsi_lab.viewer.blueprint import blueprint
+    from fnsi_lab.viewer.cli import close_stream, open_stream
 
     if args.blas_threads > 0:
         limit_blas_threads(args.blas_threads)
@@ -374,7 +374,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 # ---------------------------------------------------------------------------- parser
 def _common(p: argparse.ArgumentParser, orders: str = DEFAULT_ORDERS,
             harmonics: float = 1.0) -> None:
-    from viewer.cli import add_viewer_arguments
+    from fnsi_lab.viewer.cli import add_viewer_arguments
 
     g = p.add_argument_group("identification")
     g.add_argument("--ident", metavar="IDENT.yaml",

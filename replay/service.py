@@ -29,9 +29,9 @@ from typing import Any, Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from daq.acquisition import put_drop_oldest
-from daq.block import Block
-from daq.channels import ChannelInfo
+from fnsi_lab.daq.acquisition import put_drop_oldest
+from fnsi_lab.daq.block import Block
+from fnsi_lab.daq.channels import ChannelInfo
 from fnsi_lab.errors import ConfigError
 
 _END = object()
@@ -148,7 +148,7 @@ def build_record(periods: Mapping[int, Sequence[CompletePeriod]], channels: Sequ
     Each realization contributes its longest run of consecutive periods starting at its
     first kept one; all realizations are cut to the shortest, as ``read_periodic`` does.
     """
-    from daq.recording.reader import PeriodicRecord, _periodicity
+    from fnsi_lab.daq.recording.reader import PeriodicRecord, _periodicity
 
     reals = sorted(r for r, ps in periods.items() if ps)
     runs = {}
@@ -348,7 +348,7 @@ class IdentService:
         Without a recorded number of transient periods, steady state is detected
         (``steady_state_tolerance`` defaults to :data:`DEFAULT_STEADY_TOLERANCE`).
         """
-        from daq.recording.reader import _excited_lines
+        from fnsi_lab.daq.recording.reader import _excited_lines
 
         exc = metadata.get("excitation") or {}
         n = kwargs.pop("samples_per_period", None) or exc.get("samples_per_period")
@@ -701,8 +701,8 @@ def auto_identifier(*, prepare: Callable[[Any], Any] | None = None,
         ``spread(data) -> (model -> rho) or None``: coefficient consistency for the order
         selection (:func:`ident.coefficients.spread_function`).
     """
-    from ident.auto import identify_auto
-    from ident.periodic import prepare_frequency_data
+    from fnsi_lab.ident.auto import identify_auto
+    from fnsi_lab.ident.periodic import prepare_frequency_data
 
     def default_prepare(record: Any) -> Any:
         # processed band = the excited band; outputs all of one quantity
@@ -739,7 +739,7 @@ def auto_identifier(*, prepare: Callable[[Any], Any] | None = None,
 
 def auto_view(update: ServiceUpdate) -> dict[str, Any]:
     """Plain-dict view of an :class:`AutoIdentification` update for :func:`viewer.log.log_identification`."""
-    from viewer.log import summary_markdown
+    from fnsi_lab.viewer.log import summary_markdown
 
     ai: AutoIdentification = update.result
     res, data = ai.result, ai.data
@@ -849,7 +849,7 @@ def basis_from_truth(truth: Mapping[str, Any] | None) -> tuple[Any, ...]:
     Returns an empty tuple when the truth has none or describes an element this version
     cannot express (the identification then stays linear).
     """
-    from ident.basis import Nonlinearity
+    from fnsi_lab.ident.basis import Nonlinearity
 
     out = []
     for el in (truth or {}).get("nonlinearities") or []:
@@ -887,7 +887,7 @@ def _active(basis: Sequence[Any], record: Any, quantity: str,
     """
     if quantity != "displacement" or not basis:
         return tuple(basis)
-    from ident.basis import evaluate_basis
+    from fnsi_lab.ident.basis import evaluate_basis
 
     q = np.asarray(record.y)[0, -1]  # last period of the first realization, (N, p)
     kept = []
@@ -935,8 +935,8 @@ def config_identifier(config: Any = None, *, truth: Mapping[str, Any] | None = N
     (callable, str)
         The identifier and a one-line description.
     """
-    from ident.coefficients import nonlinear_coefficients
-    from ident.periodic import prepare_frequency_data
+    from fnsi_lab.ident.coefficients import nonlinear_coefficients
+    from fnsi_lab.ident.periodic import prepare_frequency_data
 
     basis = tuple(config.nonlinearities) if config is not None else basis_from_truth(truth)
     if config is not None and config.max_order:
@@ -1009,7 +1009,7 @@ def config_identifier(config: Any = None, *, truth: Mapping[str, Any] | None = N
     if config is not None and "d_zero" not in options:
         options["d_zero"] = config.d_zero_for(quantity or "displacement")
     def spread_for(data: Any) -> Any:
-        from ident.coefficients import spread_function
+        from fnsi_lab.ident.coefficients import spread_function
 
         used = [nl for nl in basis if set(nl.coefficient_names) <= set(data.basis_names)]
         return spread_function(data, used, driving_point=driving_points(data))
@@ -1017,7 +1017,7 @@ def config_identifier(config: Any = None, *, truth: Mapping[str, Any] | None = N
     identify = auto_identifier(prepare=prepare, options=options or None, orders=orders,
                                coefficients=coefficient_curves if basis else None, exact=exact,
                                spread=spread_for if basis else None)
-    what = (f"ident.auto, orders {orders[0]}-{orders[-1]}, "
+    what = (f"fnsi_lab.ident.auto, orders {orders[0]}-{orders[-1]}, "
             + (f"{len(basis)} nonlinear element(s): "
                + ", ".join(f"{nl.name} ({nl.kind})" for nl in basis) if basis else "linear")
             + (f", config {config.file}" if config is not None and config.file else ""))

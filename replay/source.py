@@ -22,15 +22,15 @@ import numpy as np
 from mcap.records import Channel, DataEnd, Footer, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 
-from daq.block import Block
-from daq.channels import ChannelInfo
-from daq.recording import schema as block_schema
-from daq.recording import topics
-from daq.source import Source
+from fnsi_lab.daq.block import Block
+from fnsi_lab.daq.channels import ChannelInfo
+from fnsi_lab.daq.recording import schema as block_schema
+from fnsi_lab.daq.recording import topics
+from fnsi_lab.daq.source import Source
 from fnsi_lab.errors import ConfigError, DataFileError
 
 if TYPE_CHECKING:  # pragma: no cover
-    from daq.config import ExperimentConfig
+    from fnsi_lab.daq.config import ExperimentConfig
 
 #: Default seconds without file growth after which a followed recording is considered over.
 DEFAULT_FOLLOW_TIMEOUT_S = 10.0

@@ -8,8 +8,8 @@ from typing import Any, Callable
 import numpy as np
 import pytest
 
-from daq.block import Block
-from daq.channels import ChannelInfo
+from fnsi_lab.daq.block import Block
+from fnsi_lab.daq.channels import ChannelInfo
 
 
 def make_channels(n_outputs: int = 3, n_inputs: int = 1) -> tuple[ChannelInfo, ...]:
@@ -48,7 +48,7 @@ def blocks_from_array(data: np.ndarray, channels: tuple[ChannelInfo, ...], sampl
 @pytest.fixture(autouse=True)
 def _no_leaked_recorders():
     """Fail a test that leaves a daq.recording.Recorder open (its file would be unfinished)."""
-    from daq.recording.writer import open_recorders
+    from fnsi_lab.daq.recording.writer import open_recorders
     before = set(map(id, open_recorders()))
     yield
     leaked = [r for r in open_recorders() if id(r) not in before]
@@ -73,7 +73,7 @@ def write_recording(tmp_path: Path) -> Callable[..., tuple[Path, list[Block]]]:
     excitation record; ``excitation=None`` drops it), ``attachments``, ``seed``,
     ``noise``, ``extra_samples`` (appended after the last whole period), recorder kwargs.
     """
-    from daq.recording import Recorder
+    from fnsi_lab.daq.recording import Recorder
 
     def factory(name: str = "rec.mcap", *, channels: tuple[ChannelInfo, ...] | None = None,
                 sample_rate_hz: float = 1000.0, samples_per_period: int = 200,

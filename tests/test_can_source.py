@@ -14,9 +14,9 @@ import cantools
 import numpy as np
 import pytest
 
-from daq.config import parse_experiment
-from daq.multisine import multisine
-from daq.sources.can_source import CanSource
+from fnsi_lab.daq.config import parse_experiment
+from fnsi_lab.daq.multisine import multisine
+from fnsi_lab.daq.sources.can_source import CanSource
 from fnsi_lab.errors import ConfigError
 
 DBC = Path(__file__).resolve().parent.parent / "daq" / "data" / "example_can.dbc"

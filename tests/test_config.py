@@ -6,7 +6,7 @@ import textwrap
 
 import pytest
 
-from daq.config import load_experiment, parse_experiment
+from fnsi_lab.daq.config import load_experiment, parse_experiment
 from fnsi_lab.errors import ConfigError
 
 GOOD = """

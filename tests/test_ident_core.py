@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 import scipy.linalg as sla
 
-from ident import fnsi
-from ident.basis import Nonlinearity, evaluate_basis
-from ident.coefficients import nonlinear_coefficients, summarize_coefficients
-from ident.errors import ChannelError, IdentError, IdentWarning, NotIdentifiableError
-from ident.periodic import FrequencyData, prepare_frequency_data
+from fnsi_lab.ident import fnsi
+from fnsi_lab.ident.basis import Nonlinearity, evaluate_basis
+from fnsi_lab.ident.coefficients import nonlinear_coefficients, summarize_coefficients
+from fnsi_lab.ident.errors import ChannelError, IdentError, IdentWarning, NotIdentifiableError
+from fnsi_lab.ident.periodic import FrequencyData, prepare_frequency_data
 
 
 # ---------------------------------------------------------------------------- helpers
@@ -316,8 +316,8 @@ def test_weighting_beats_no_weighting():
 
 # ---------------------------------------------------------------------------- simulated nonlinear
 def _simulate(variant, fs, N, P=3, quantity="displacement"):
-    sim = pytest.importorskip("daq.sim")
-    from daq.multisine import excited_lines, multisine
+    sim = pytest.importorskip("fnsi_lab.daq.sim")
+    from fnsi_lab.daq.multisine import excited_lines, multisine
     model = sim.lumped_model(variant)
     ms = multisine(N, fs, (5, 60), 20.0, n_periods=P, seed=1)
     u = np.asarray(ms.signal).reshape(-1, 1)
@@ -464,8 +464,8 @@ def test_velocity_outputs_bilinear_with_static_offset(cubic_sim):
     intermodulation, -1.07e-5 m for 1.7e-3 m RMS): without it, or with the ZOH time base
     (+1.6 %: velocities are not ZOH signals), the coefficient is biased.
     """
-    sim = pytest.importorskip("daq.sim")
-    from daq.multisine import excited_lines, multisine
+    sim = pytest.importorskip("fnsi_lab.daq.sim")
+    from fnsi_lab.daq.multisine import excited_lines, multisine
     fs, N = 512.0, 4096
     model = sim.lumped_model("cubic")
     u = np.asarray(multisine(N, fs, (5, 60), 20.0, n_periods=3, seed=1).signal).reshape(-1, 1)
@@ -489,9 +489,9 @@ def test_velocity_outputs_bilinear_with_static_offset(cubic_sim):
 def test_band_limited_reading_gives_the_ct_frf_of_anti_aliased_data():
     """Anti-alias filtered samples are not ZOH signals: read as such, every FRF carries a
     half-sample delay (phase w T / 2); the band-limited reading (the default) does not."""
-    sim = pytest.importorskip("daq.sim")
-    from daq.multisine import multisine
-    from daq.sim.integrate import simulate
+    sim = pytest.importorskip("fnsi_lab.daq.sim")
+    from fnsi_lab.daq.multisine import multisine
+    from fnsi_lab.daq.sim.integrate import simulate
     fs, N = 256.0, 4096
     model = sim.lumped_model("none")
     u = np.asarray(multisine(N, fs, (2, 60), 10.0, n_periods=4, seed=3).signal).reshape(-1, 1)

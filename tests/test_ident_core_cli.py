@@ -9,9 +9,9 @@ import pytest
 import scipy.io
 
 from fnsi_lab.cli import main
-from ident.config import load_ident_config, packaged_config, parse_ident_config
-from ident.errors import IdentConfigError, IdentDataError
-from ident.io import load_input
+from fnsi_lab.ident.config import load_ident_config, packaged_config, parse_ident_config
+from fnsi_lab.ident.errors import IdentConfigError, IdentDataError
+from fnsi_lab.ident.io import load_input
 
 CONFIG = """\
 band_hz: [3, 150]
@@ -32,8 +32,8 @@ max_order: 10
 
 @pytest.fixture(scope="module")
 def cubic_arrays():
-    sim = pytest.importorskip("daq.sim")
-    from daq.multisine import multisine
+    sim = pytest.importorskip("fnsi_lab.daq.sim")
+    from fnsi_lab.daq.multisine import multisine
     fs, N = 512.0, 4096
     model = sim.lumped_model("cubic")
     u = np.asarray(multisine(N, fs, (5, 60), 20.0, n_periods=3, seed=1).signal).reshape(-1, 1)
@@ -130,7 +130,7 @@ def test_unknown_format(tmp_path):
 
 def test_mcap_recording_end_to_end(tmp_path, capsys):
     """fnsi-lab acquire (packaged lumped experiment) -> MCAP -> fnsi-lab ident."""
-    pytest.importorskip("daq.recording.reader")
+    pytest.importorskip("fnsi_lab.daq.recording.reader")
     rec = tmp_path / "lumped.mcap"
     assert main(["acquire", "--config", "lumped.yaml", "--out", str(rec), "--quiet", "--no-info"]) == 0
     cfg = tmp_path / "ident.yaml"

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from fnsi_lab.cli import main
-from ident import auto
-from ident.errors import IdentError
+from fnsi_lab.ident import auto
+from fnsi_lab.ident.errors import IdentError
 
 YAML = """\
 band_hz: [3, 150]
@@ -30,9 +30,9 @@ auto:
 
 @pytest.fixture(scope="module")
 def lumped_npz(tmp_path_factory):
-    from daq.multisine import multisine
-    from daq.sim.integrate import simulate
-    from daq.sim.lumped import lumped_model
+    from fnsi_lab.daq.multisine import multisine
+    from fnsi_lab.daq.sim.integrate import simulate
+    from fnsi_lab.daq.sim.lumped import lumped_model
     m = lumped_model("cubic")
     ms = multisine(4096, 500.0, (3, 60), 20.0, n_periods=2, seed=1)
     r = simulate(m, ms.signal[0][:, None], 500.0, periodic=4096, quantities=("displacement",))

@@ -6,13 +6,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ident import auto, fnsi
-from ident import order_selection as osel
-from ident.basis import Nonlinearity
-from ident.coefficients import (coefficient_spread, nonlinear_coefficients, spread_function,
+from fnsi_lab.ident import auto, fnsi
+from fnsi_lab.ident import order_selection as osel
+from fnsi_lab.ident.basis import Nonlinearity
+from fnsi_lab.ident.coefficients import (coefficient_spread, nonlinear_coefficients, spread_function,
                                 summarize_coefficients)
-from ident.mdi import modal_detection
-from ident.periodic import interpolate_periodic, prepare_frequency_data
+from fnsi_lab.ident.mdi import modal_detection
+from fnsi_lab.ident.periodic import interpolate_periodic, prepare_frequency_data
 
 
 # ---------------------------------------------------------------------------- pure functions
@@ -44,7 +44,7 @@ def test_mdl_penalty_grows_with_the_parameter_count():
 
 
 def test_coefficient_spread_is_zero_for_a_real_constant_and_grows_with_departure():
-    from ident.coefficients import CoefficientSpectra
+    from fnsi_lab.ident.coefficients import CoefficientSpectra
     rng = np.random.default_rng(0)
     den = (rng.standard_normal(200) + 1j * rng.standard_normal(200))[:, None, None]
     exc = np.ones(200, bool)
@@ -98,8 +98,8 @@ def test_interpolate_periodic_is_exact_for_band_limited_signals():
 def test_basis_oversampling_lowers_the_aliasing_floor_of_a_stop():
     """Relative two-sided stop of the 3-DOF chain sampled at 256 Hz: the kink's content
     aliases onto the processed lines unless h_a is evaluated between the samples."""
-    sim = pytest.importorskip("daq.sim")
-    from daq.multisine import excited_lines, multisine
+    sim = pytest.importorskip("fnsi_lab.daq.sim")
+    from fnsi_lab.daq.multisine import excited_lines, multisine
     fs, N = 256.0, 4096
     model = sim.lumped_model("trilinear")
     u = np.asarray(multisine(N, fs, (5, 60), 12.0, n_periods=4, seed=2).signal).reshape(-1, 1)
@@ -132,10 +132,10 @@ def test_basis_oversampling_lowers_the_aliasing_floor_of_a_stop():
 def test_three_channel_smallsat_order_selection_keeps_the_coefficients_physical():
     """The regression that motivated the gate: with 3 channels the seed's argmin I went to
     high orders where c_NC2 was -100 %. The selected order must give the paper's accuracy."""
-    pytest.importorskip("daq.sim")
-    from daq.multisine import multisine
-    from daq.sim.integrate import simulate
-    from daq.sim.smallsat import DEFAULT_CLEARANCES, NC2Z_CONTACT, smallsat_model
+    pytest.importorskip("fnsi_lab.daq.sim")
+    from fnsi_lab.daq.multisine import multisine
+    from fnsi_lab.daq.sim.integrate import simulate
+    from fnsi_lab.daq.sim.smallsat import DEFAULT_CLEARANCES, NC2Z_CONTACT, smallsat_model
     model = smallsat_model()
     fs, N = 1000.0, 8192
     u = np.asarray(multisine(N, fs, (5, 50), 100.0, n_periods=6, seed=1).signal[0], float)
@@ -167,8 +167,8 @@ def test_noisy_accelerations_integrate_only_the_lines_above_the_noise():
     """40 dB white noise on the accelerations of the cubic chain (6 periods averaged): the
     double integration for the basis function blows up the noise of the lines below the
     excitation unless those lines are dropped (ident.periodic.noise_gain)."""
-    sim = pytest.importorskip("daq.sim")
-    from daq.multisine import excited_lines, multisine
+    sim = pytest.importorskip("fnsi_lab.daq.sim")
+    from fnsi_lab.daq.multisine import excited_lines, multisine
     fs, N = 512.0, 4096
     model = sim.lumped_model("cubic")
     u = np.asarray(multisine(N, fs, (5, 60), 20.0, n_periods=10, seed=1).signal).reshape(-1, 1)

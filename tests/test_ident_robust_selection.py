@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from ident import order_selection as osel
-from ident import stabilisation as stab
-from ident.errors import IdentError
+from fnsi_lab.ident import order_selection as osel
+from fnsi_lab.ident import stabilisation as stab
+from fnsi_lab.ident.errors import IdentError
 
 
 def test_macx_properties():

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from daq.multisine import excited_lines, multisine
+from fnsi_lab.daq.multisine import excited_lines, multisine
 
 
 def _spectrum(ms, r=0, p=0):

@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 from mcap.writer import Writer
 
-from daq.block import Block
-from daq.channels import ChannelInfo
-from daq.recording import (MissingChannelsError, NotMcapError, Recorder, RecorderClosedError,
+from fnsi_lab.daq.block import Block
+from fnsi_lab.daq.channels import ChannelInfo
+from fnsi_lab.daq.recording import (MissingChannelsError, NotMcapError, Recorder, RecorderClosedError,
                            RecordingError, RecordingNotFoundError, UnfinishedRecordingError,
                            WrongSchemaError, format_info, open_recording, read_periodic,
                            recording_info, topics)
-from daq.source import SourceEvent
+from fnsi_lab.daq.source import SourceEvent
 from fnsi_lab import __version__
 from fnsi_lab.errors import DataFileError
 from conftest import blocks_from_array, make_channels
@@ -370,7 +370,7 @@ def test_wrong_schema(tmp_path):
 
 
 def _raw_recording(path, channel_meta: dict, metadata: dict | None, n_channels: int) -> None:
-    from daq.recording import schema
+    from fnsi_lab.daq.recording import schema
     with open(path, "wb") as f:
         w = Writer(f)
         w.start()

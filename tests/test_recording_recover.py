@@ -14,7 +14,7 @@ import pytest
 from mcap.reader import make_reader
 from mcap.stream_reader import StreamReader
 
-from daq.recording import (NotMcapError, RecordingError, RecordingNotFoundError, open_recording,
+from fnsi_lab.daq.recording import (NotMcapError, RecordingError, RecordingNotFoundError, open_recording,
                            recover, topics)
 
 
@@ -110,9 +110,9 @@ def test_recover_bad_inputs(tmp_path, write_recording):
 WRITER_SCRIPT = textwrap.dedent("""
     import sys, time
     import numpy as np
-    from daq.block import Block
-    from daq.channels import ChannelInfo
-    from daq.recording import Recorder
+    from fnsi_lab.daq.block import Block
+    from fnsi_lab.daq.channels import ChannelInfo
+    from fnsi_lab.daq.recording import Recorder
 
     chans = (ChannelInfo("F", "force"), ChannelInfo("X1"), ChannelInfo("X2"), ChannelInfo("X3"))
     rec = Recorder(sys.argv[1], chans, 1000.0, flush_interval_s=0.2,

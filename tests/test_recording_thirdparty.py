@@ -10,7 +10,7 @@ import pytest
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from mcap.reader import make_reader
 
-from daq.recording import schema, topics
+from fnsi_lab.daq.recording import schema, topics
 
 
 def _class_from_file_descriptor_set(data: bytes, full_name: str) -> type:

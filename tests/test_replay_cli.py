@@ -7,9 +7,9 @@ import pytest
 from rerun.chunk import RrdReader
 
 from fnsi_lab.cli import main
-from replay.cli import parse_orders
-from viewer import paths
-from viewer.cli import rrd_entities, rrd_text
+from fnsi_lab.replay.cli import parse_orders
+from fnsi_lab.viewer import paths
+from fnsi_lab.viewer.cli import rrd_entities, rrd_text
 
 
 def _scalars(path, entity: str) -> list[list[float]]:
@@ -66,13 +66,13 @@ def test_spawn_without_display_falls_back_to_saving(tmp_path, capsys, monkeypatc
 
 def test_live_runs_the_lumped_experiment_end_to_end(tmp_path, capsys):
     """Simulated 3-DOF chain with a cubic spring (k = 1e9 N/m^3): acquire -> MCAP -> ident -> rrd."""
-    pytest.importorskip("daq.sim.source", reason="daq.sim.source (simulated sources) missing")
+    pytest.importorskip("fnsi_lab.daq.sim.source", reason="fnsi_lab.daq.sim.source (simulated sources) missing")
     mcap, rrd = tmp_path / "live.mcap", tmp_path / "live.rrd"
     assert main(["live", "--config", "lumped.yaml", "--fast", "--orders", "2:10",
                  "--out", str(mcap), "--rrd", str(rrd), "--quiet"]) == 0
     out = capsys.readouterr().out
     assert "recorded" in out and "0 blocks dropped" in out and "0 failures" in out
-    from daq.recording.reader import read_periodic
+    from fnsi_lab.daq.recording.reader import read_periodic
 
     rec = read_periodic(mcap)
     assert rec.n_realizations == 2 and rec.n_periods == 4  # recording complete
@@ -104,8 +104,8 @@ def test_replay_follow_picks_up_a_file_being_written(tmp_path, capsys):
     import threading
     import time
 
-    from daq.recording import Recorder
-    from daq.sources.array_source import ArraySource
+    from fnsi_lab.daq.recording import Recorder
+    from fnsi_lab.daq.sources.array_source import ArraySource
     from test_service import CHANNELS, FS, two_dof
 
     data, meta = two_dof(4)
@@ -136,12 +136,12 @@ def test_replay_follow_picks_up_a_file_being_written(tmp_path, capsys):
 def test_run_is_the_readme_main_job_on_the_default_smallsat(tmp_path, capsys):
     """``fnsi-lab run`` (the README's first command): simulated SmallSat -> MCAP -> robust
     identification -> .rrd + the Table-2 summary."""
-    pytest.importorskip("daq.sim.source", reason="daq.sim.source (simulated sources) missing")
+    pytest.importorskip("fnsi_lab.daq.sim.source", reason="fnsi_lab.daq.sim.source (simulated sources) missing")
     mcap, rrd = tmp_path / "smallsat.mcap", tmp_path / "smallsat.rrd"
     assert main(["run", "--out", str(mcap), "--rrd", str(rrd), "--quiet"]) == 0
     out = capsys.readouterr().out
     assert "0 blocks dropped" in out and "0 failures" in out
-    from daq.recording.reader import read_periodic
+    from fnsi_lab.daq.recording.reader import read_periodic
 
     rec = read_periodic(mcap)      # the paper's record: 6 periods of 8192 samples, 39 outputs
     assert rec.y.shape[1:] == (6, 8192, 39) and rec.u.shape[-1] == 1

@@ -8,11 +8,11 @@ import time
 import numpy as np
 import pytest
 
-from daq import registry
-from daq.config import ExperimentConfig, SourceConfig
-from daq.recording import Recorder
+from fnsi_lab.daq import registry
+from fnsi_lab.daq.config import ExperimentConfig, SourceConfig
+from fnsi_lab.daq.recording import Recorder
 from fnsi_lab.errors import ConfigError
-from replay.source import ReplayError, ReplaySource
+from fnsi_lab.replay.source import ReplayError, ReplaySource
 
 
 def test_replay_yields_every_block_in_order_bit_for_bit(write_recording):

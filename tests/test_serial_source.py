@@ -14,9 +14,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from daq.config import parse_experiment
-from daq.multisine import multisine
-from daq.sources.serial_source import SerialSource
+from fnsi_lab.daq.config import parse_experiment
+from fnsi_lab.daq.multisine import multisine
+from fnsi_lab.daq.sources.serial_source import SerialSource
 from fnsi_lab.errors import ConfigError
 from tests.test_can_source import no_adapter_leaks  # noqa: F401  (autouse fixture)
 

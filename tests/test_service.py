@@ -8,15 +8,15 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from daq.acquisition import Tap, acquire
-from daq.channels import ChannelInfo
-from daq.multisine import multisine
-from daq.recording import Recorder
-from daq.recording.reader import read_periodic
-from daq.sources.array_source import ArraySource
-from replay.service import (IdentService, PeriodAssembler, auto_identifier, auto_view,
+from fnsi_lab.daq.acquisition import Tap, acquire
+from fnsi_lab.daq.channels import ChannelInfo
+from fnsi_lab.daq.multisine import multisine
+from fnsi_lab.daq.recording import Recorder
+from fnsi_lab.daq.recording.reader import read_periodic
+from fnsi_lab.daq.sources.array_source import ArraySource
+from fnsi_lab.replay.service import (IdentService, PeriodAssembler, auto_identifier, auto_view,
                             frf_identifier)
-from replay.source import ReplaySource
+from fnsi_lab.replay.source import ReplaySource
 
 FS, N = 500.0, 512
 CHANNELS = (ChannelInfo("F-A-Z", "force", node="A", direction="Z"),

@@ -7,13 +7,13 @@ import warnings
 import numpy as np
 import pytest
 
-from daq.config import load_experiment
-from daq.multisine import multisine
-from daq.registry import make_source
-from daq.sim.integrate import foh_coefficients, simulate
-from daq.sim.lumped import lumped_model
-from daq.sim.nonlinear import NonlinearElement
-from daq.sim.source import SimulatedSource, model_from_mapping
+from fnsi_lab.daq.config import load_experiment
+from fnsi_lab.daq.multisine import multisine
+from fnsi_lab.daq.registry import make_source
+from fnsi_lab.daq.sim.integrate import foh_coefficients, simulate
+from fnsi_lab.daq.sim.lumped import lumped_model
+from fnsi_lab.daq.sim.nonlinear import NonlinearElement
+from fnsi_lab.daq.sim.source import SimulatedSource, model_from_mapping
 from fnsi_lab.errors import ConfigError
 
 FS = 1000.0
@@ -217,7 +217,7 @@ def test_independent_newmark_oracle_agrees():
     at 32x is within 4e-6 of its limit (convergence test). 4e-5 at 40x leaves a 3x margin;
     the 20x error must be larger than the 40x one (both codes converge to the same limit).
     """
-    from daq.sim.integrate import lowpass_decimate_periodic, newmark
+    from fnsi_lab.daq.sim.integrate import lowpass_decimate_periodic, newmark
     m = lumped_model("trilinear")
     p = _force(periods=5)
     ref = simulate(m, p, FS, oversample=32, periodic=N).displacement[-N:]
@@ -263,7 +263,7 @@ def test_stiff_stop_newton_and_divergence_is_reported():
     """A stop 1000x stiffer than the chain (local frequency ~2.3 kHz) is still integrated at
     16 kHz (Newton corrector, converged in every step); at 4 kHz internal rate the scheme is
     out of its stability range and must raise, not return garbage."""
-    from daq.sim.integrate import IntegrationError
+    from fnsi_lab.daq.sim.integrate import IntegrationError
     m = lumped_model("trilinear", contact=(1e8, 1e8))
     p = _force(periods=2)
     r = simulate(m, p, FS, oversample=16, periodic=N)
@@ -330,7 +330,7 @@ def test_corrector_converges_to_round_off_and_warns_on_genuine_failure():
 
 def test_a_quantity_asked_twice_is_computed_once():
     """``quantities`` accumulate per name: a repeated name must not double the output."""
-    from daq.multisine import multisine
+    from fnsi_lab.daq.multisine import multisine
     model = lumped_model("none")
     u = np.asarray(multisine(256, 64.0, (2, 20), 1.0, n_periods=2, seed=0).signal[0])[:, None]
     once = simulate(model, u, 64.0, periodic=256, quantities=("displacement",))

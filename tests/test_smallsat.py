@@ -8,11 +8,11 @@ import json
 import numpy as np
 import pytest
 
-from daq.config import load_experiment
-from daq.multisine import multisine
-from daq.registry import make_source
-from daq.sim.integrate import simulate
-from daq.sim.smallsat import NC2Z_CONTACT, TABLE1, mode_energy_fractions, smallsat_model
+from fnsi_lab.daq.config import load_experiment
+from fnsi_lab.daq.multisine import multisine
+from fnsi_lab.daq.registry import make_source
+from fnsi_lab.daq.sim.integrate import simulate
+from fnsi_lab.daq.sim.smallsat import NC2Z_CONTACT, TABLE1, mode_energy_fractions, smallsat_model
 
 FS = 1000.0
 N = 8192

@@ -8,11 +8,11 @@ import time
 import numpy as np
 import pytest
 
-from daq import registry
-from daq.acquisition import Tap, acquire
-from daq.channels import ChannelInfo
-from daq.source import SourceClosedError
-from daq.sources.array_source import ArraySource
+from fnsi_lab.daq import registry
+from fnsi_lab.daq.acquisition import Tap, acquire
+from fnsi_lab.daq.channels import ChannelInfo
+from fnsi_lab.daq.source import SourceClosedError
+from fnsi_lab.daq.sources.array_source import ArraySource
 from fnsi_lab.errors import ConfigError
 
 CHANNELS = [ChannelInfo("u", "force"), ChannelInfo("y1"), ChannelInfo("y2")]
@@ -68,7 +68,7 @@ def test_registry_is_lazy_and_names_missing_modules(monkeypatch):
             "if m in sys.modules]; print(bad)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert out.stdout.strip() == "[]", out.stderr
-    monkeypatch.setitem(registry.SOURCES, "ghost", ("daq.sources.no_such_driver", "Ghost"))
+    monkeypatch.setitem(registry.SOURCES, "ghost", ("fnsi_lab.daq.sources.no_such_driver", "Ghost"))
     with pytest.raises(ConfigError, match="cannot be loaded") as info:
         registry.source_class("ghost")
     assert "no_such_driver" in str(info.value)

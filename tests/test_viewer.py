@@ -8,10 +8,10 @@ import rerun as rr
 from rerun.chunk import RrdReader
 
 from fnsi_lab.cli import main
-from viewer import log as vlog
-from viewer import paths
-from viewer.blueprint import blueprint
-from viewer.cli import rrd_entities, rrd_text
+from fnsi_lab.viewer import log as vlog
+from fnsi_lab.viewer import paths
+from fnsi_lab.viewer.blueprint import blueprint
+from fnsi_lab.viewer.cli import rrd_entities, rrd_text
 
 
 def read_rrd(path) -> dict[str, list]:

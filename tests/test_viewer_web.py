@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 import rerun as rr
 
-from viewer import log as vlog
-from viewer.blueprint import blueprint
+from fnsi_lab.viewer import log as vlog
+from fnsi_lab.viewer.blueprint import blueprint
 
 CHROMIUM = os.environ.get("FNSI_LAB_CHROMIUM", "/usr/bin/chromium")
 FLAGS = ["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",

@@ -7,7 +7,7 @@
   ``view`` command.
 """
 
-from viewer import paths  # noqa: F401
-from viewer.blueprint import blueprint  # noqa: F401
+from fnsi_lab.viewer import paths  # noqa: F401
+from fnsi_lab.viewer.blueprint import blueprint  # noqa: F401
 
 __all__ = ["paths", "blueprint"]

@@ -13,7 +13,7 @@ from typing import Sequence
 
 import rerun.blueprint as rrb
 
-from viewer import paths
+from fnsi_lab.viewer import paths
 
 #: Seconds of signal history shown behind the time cursor (a bounded window keeps the
 #: viewer responsive at kHz rates).

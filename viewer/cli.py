@@ -186,7 +186,7 @@ def rrd_text(path: str | Path, entity: str) -> str | None:
 
 # ---------------------------------------------------------------------------- view command
 def _cmd_view(args: argparse.Namespace) -> int:
-    from viewer import paths
+    from fnsi_lab.viewer import paths
 
     counts = rrd_entities(args.file)
     print(f"{args.file}: {len(counts)} entities, {sum(counts.values())} rows")
@@ -210,7 +210,7 @@ def _cmd_view(args: argparse.Namespace) -> int:
     if args.connect or args.serve_web:
         from rerun.chunk import RrdReader
 
-        from viewer.blueprint import blueprint
+        from fnsi_lab.viewer.blueprint import blueprint
 
         args.rrd = None
         rec, sinks = open_stream(args, blueprint())

@@ -18,7 +18,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 import rerun as rr
 
-from viewer import paths
+from fnsi_lab.viewer import paths
 
 # RGB colours, one per series kind (colour-blind-friendly Okabe-Ito palette).
 _BLUE, _ORANGE, _GREEN = (0, 114, 178), (230, 159, 0), (0, 158, 115)

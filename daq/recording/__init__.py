@@ -10,13 +10,13 @@ names live in :mod:`daq.recording.topics`.
   :func:`format_info` describe one.
 """
 
-from daq.recording.errors import (MissingChannelsError, NotMcapError, RecorderClosedError,
+from fnsi_lab.daq.recording.errors import (MissingChannelsError, NotMcapError, RecorderClosedError,
                                   RecordingError, RecordingNotFoundError,
                                   UnfinishedRecordingError, WrongSchemaError)
-from daq.recording.info import format_info, recording_info
-from daq.recording.reader import PeriodicRecord, Recording, open_recording, read_periodic
-from daq.recording.recover import RecoverReport, recover
-from daq.recording.writer import Recorder, experiment_attachment
+from fnsi_lab.daq.recording.info import format_info, recording_info
+from fnsi_lab.daq.recording.reader import PeriodicRecord, Recording, open_recording, read_periodic
+from fnsi_lab.daq.recording.recover import RecoverReport, recover
+from fnsi_lab.daq.recording.writer import Recorder, experiment_attachment
 
 __all__ = [
     "Recorder", "experiment_attachment", "Recording", "PeriodicRecord", "open_recording",

@@ -6,8 +6,8 @@ import os
 from collections import Counter
 from typing import Any
 
-from daq.recording import schema, topics
-from daq.recording.reader import open_recording
+from fnsi_lab.daq.recording import schema, topics
+from fnsi_lab.daq.recording.reader import open_recording
 
 
 def recording_info(path: str | os.PathLike[str]) -> dict[str, Any]:

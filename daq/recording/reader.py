@@ -27,13 +27,13 @@ from mcap.opcode import Opcode
 from mcap.records import Channel, Chunk
 from mcap.summary import Summary
 
-from daq.block import Block
-from daq.channels import ChannelInfo
-from daq.recording import schema, topics
-from daq.recording.errors import (MissingChannelsError, NotMcapError, RecordingError,
+from fnsi_lab.daq.block import Block
+from fnsi_lab.daq.channels import ChannelInfo
+from fnsi_lab.daq.recording import schema, topics
+from fnsi_lab.daq.recording.errors import (MissingChannelsError, NotMcapError, RecordingError,
                                   RecordingNotFoundError, UnfinishedRecordingError,
                                   WrongSchemaError)
-from daq.recording.recover import MCAP_MAGIC, RecoverReport, recover
+from fnsi_lab.daq.recording.recover import MCAP_MAGIC, RecoverReport, recover
 
 
 def recovered_name(path: str | os.PathLike[str]) -> str:
@@ -687,6 +687,6 @@ def _excited_lines(exc: dict[str, Any] | None, n: int, fs: float) -> np.ndarray:
     if exc.get("excited_lines") is not None:
         return np.asarray(exc["excited_lines"], dtype=np.int64)
     if exc.get("band_hz") is not None:
-        from daq.multisine import excited_lines
+        from fnsi_lab.daq.multisine import excited_lines
         return excited_lines(n, float(exc.get("sample_rate_hz", fs)), tuple(exc["band_hz"]))
     return np.zeros(0, dtype=np.int64)

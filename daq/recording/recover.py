@@ -24,9 +24,9 @@ from mcap.records import (Attachment, Channel, Chunk, DataEnd, Footer, Header, M
 from mcap.stream_reader import MAGIC_SIZE, StreamReader, breakup_chunk
 from mcap.writer import CompressionType, Writer
 
-from daq.recording import topics
-from daq.recording.errors import NotMcapError, RecordingError, RecordingNotFoundError
-from daq.recording.writer import dumps, software_version
+from fnsi_lab.daq.recording import topics
+from fnsi_lab.daq.recording.errors import NotMcapError, RecordingError, RecordingNotFoundError
+from fnsi_lab.daq.recording.writer import dumps, software_version
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 

@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 
-from daq.recording import topics
+from fnsi_lab.daq.recording import topics
 
 _F = descriptor_pb2.FieldDescriptorProto
 

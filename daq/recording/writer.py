@@ -24,10 +24,10 @@ from typing import Any, Iterable, Literal, Mapping, Sequence
 import numpy as np
 from mcap.writer import CompressionType, Writer
 
-from daq.block import Block
-from daq.channels import ChannelInfo
-from daq.recording import schema, topics
-from daq.recording.errors import RecorderClosedError, RecordingError
+from fnsi_lab.daq.block import Block
+from fnsi_lab.daq.channels import ChannelInfo
+from fnsi_lab.daq.recording import schema, topics
+from fnsi_lab.daq.recording.errors import RecorderClosedError, RecordingError
 
 _COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
                 "none": CompressionType.NONE}

@@ -15,13 +15,13 @@ __all__ = ["StructuralModel", "NonlinearElement", "simulate", "SimulationResult"
            "lumped_model", "smallsat_model", "SimulatedSource"]
 
 _LAZY = {
-    "StructuralModel": "daq.sim.model",
-    "NonlinearElement": "daq.sim.nonlinear",
-    "simulate": "daq.sim.integrate",
-    "SimulationResult": "daq.sim.integrate",
-    "lumped_model": "daq.sim.lumped",
-    "smallsat_model": "daq.sim.smallsat",
-    "SimulatedSource": "daq.sim.source",
+    "StructuralModel": "fnsi_lab.daq.sim.model",
+    "NonlinearElement": "fnsi_lab.daq.sim.nonlinear",
+    "simulate": "fnsi_lab.daq.sim.integrate",
+    "SimulationResult": "fnsi_lab.daq.sim.integrate",
+    "lumped_model": "fnsi_lab.daq.sim.lumped",
+    "smallsat_model": "fnsi_lab.daq.sim.smallsat",
+    "SimulatedSource": "fnsi_lab.daq.sim.source",
 }
 
 
@@ -29,4 +29,4 @@ def __getattr__(name: str) -> Any:
     if name in _LAZY:
         import importlib
         return getattr(importlib.import_module(_LAZY[name]), name)
-    raise AttributeError(f"module 'daq.sim' has no attribute {name!r}")
+    raise AttributeError(f"module 'fnsi_lab.daq.sim' has no attribute {name!r}")

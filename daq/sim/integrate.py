@@ -50,8 +50,8 @@ import scipy.linalg as sla
 import scipy.signal as ssig
 from numba import njit
 
-from daq.sim.model import StructuralModel
-from daq.sim.nonlinear import BASIS_COULOMB, BASIS_NEG, BASIS_POLY, BASIS_POS, element_tables
+from fnsi_lab.daq.sim.model import StructuralModel
+from fnsi_lab.daq.sim.nonlinear import BASIS_COULOMB, BASIS_NEG, BASIS_POLY, BASIS_POS, element_tables
 from fnsi_lab.errors import FnsiLabError
 
 Quantity = Literal["displacement", "velocity", "acceleration"]

@@ -19,8 +19,8 @@ from typing import Literal
 
 import numpy as np
 
-from daq.sim.model import StructuralModel
-from daq.sim.nonlinear import NonlinearElement
+from fnsi_lab.daq.sim.model import StructuralModel
+from fnsi_lab.daq.sim.nonlinear import NonlinearElement
 from fnsi_lab.errors import ConfigError
 
 LumpedVariant = Literal["cubic", "trilinear", "duffing", "none"]

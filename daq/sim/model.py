@@ -17,7 +17,7 @@ from typing import Any, Mapping
 import numpy as np
 import scipy.linalg as sla
 
-from daq.sim.nonlinear import NonlinearElement
+from fnsi_lab.daq.sim.nonlinear import NonlinearElement
 from fnsi_lab.errors import ConfigError
 
 QUANTITY_ORDER = {"displacement": 0, "velocity": 1, "acceleration": 2}

@@ -39,8 +39,8 @@ from functools import lru_cache
 import numpy as np
 import scipy.linalg as sla
 
-from daq.sim.model import StructuralModel
-from daq.sim.nonlinear import NonlinearElement
+from fnsi_lab.daq.sim.model import StructuralModel
+from fnsi_lab.daq.sim.nonlinear import NonlinearElement
 from fnsi_lab.errors import ConfigError
 
 #: Table 1 of the seed paper: natural frequency (Hz), damping ratio (-), description.

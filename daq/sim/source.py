@@ -38,14 +38,14 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from daq.block import Block
-from daq.channels import ChannelInfo
-from daq.config import ExperimentConfig, ExcitationConfig
-from daq.multisine import Multisine, multisine
-from daq.sim.integrate import SimulationResult, antialias_gain, simulate
-from daq.sim.model import StructuralModel
-from daq.sim.nonlinear import ELEMENT_KINDS, NonlinearElement
-from daq.source import Source
+from fnsi_lab.daq.block import Block
+from fnsi_lab.daq.channels import ChannelInfo
+from fnsi_lab.daq.config import ExperimentConfig, ExcitationConfig
+from fnsi_lab.daq.multisine import Multisine, multisine
+from fnsi_lab.daq.sim.integrate import SimulationResult, antialias_gain, simulate
+from fnsi_lab.daq.sim.model import StructuralModel
+from fnsi_lab.daq.sim.nonlinear import ELEMENT_KINDS, NonlinearElement
+from fnsi_lab.daq.source import Source
 from fnsi_lab.errors import ConfigError
 from fnsi_lab.validate import Section
 
@@ -182,7 +182,7 @@ def parse_options(config: ExperimentConfig) -> SimOptions:
     if isinstance(model_raw, Mapping):
         model = model_from_mapping(model_raw, file=file)
     elif model_raw == "lumped":
-        from daq.sim.lumped import lumped_model
+        from fnsi_lab.daq.sim.lumped import lumped_model
         kw: dict[str, Any] = {}
         kw["variant"] = lumped_opts.string("variant", "cubic",
                                            choices=("cubic", "trilinear", "duffing", "none"))
@@ -198,7 +198,7 @@ def parse_options(config: ExperimentConfig) -> SimOptions:
         lumped_opts.finish()
         model = lumped_model(**kw)
     elif model_raw == "smallsat":
-        from daq.sim.smallsat import smallsat_model
+        from fnsi_lab.daq.sim.smallsat import smallsat_model
         skw: dict[str, Any] = {}
         if smallsat_opts.has("damping"):
             skw["damping"] = smallsat_opts.string("damping",

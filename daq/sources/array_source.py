@@ -6,9 +6,9 @@ from typing import Sequence
 
 import numpy as np
 
-from daq.block import Block
-from daq.channels import ChannelInfo
-from daq.source import Source
+from fnsi_lab.daq.block import Block
+from fnsi_lab.daq.channels import ChannelInfo
+from fnsi_lab.daq.source import Source
 from fnsi_lab.errors import ConfigError
 
 

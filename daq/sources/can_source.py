@@ -51,10 +51,10 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from daq.block import Block
-from daq.channels import ChannelInfo
-from daq.source import Source
-from daq.sources._rate import ReceiveThread, RowEmitter
+from fnsi_lab.daq.block import Block
+from fnsi_lab.daq.channels import ChannelInfo
+from fnsi_lab.daq.source import Source
+from fnsi_lab.daq.sources._rate import ReceiveThread, RowEmitter
 from fnsi_lab.errors import ConfigError, SourceError
 from fnsi_lab.validate import Section
 
