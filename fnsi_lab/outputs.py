@@ -1,0 +1,144 @@
+"""Writing output files without ever destroying a user's data.
+
+Every command that writes a file (recordings, JSON results, reports, exports, drive
+signals) goes through :func:`check_output_path` before the work starts and writes through
+:func:`atomic_output` so that a crash never leaves a half-written file under the final
+name: the content goes to a temporary sibling (``.NAME.partial-PID``) that is renamed onto
+the final name only when the writer finished without an exception.
+
+Recordings are the exception to the rename rule: a growing MCAP file must stay under its
+final name while it is written so that ``replay --follow`` can read it and ``recover``
+can salvage it after a crash (docs/recording-format.md); they only use the existence
+check.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+import os
+from pathlib import Path
+from typing import Any, Iterator
+
+import numpy as np
+
+from fnsi_lab.errors import DataFileError, FnsiLabError
+
+
+class OutputExistsError(FnsiLabError, FileExistsError):
+    """The output file exists and ``--force`` was not given."""
+
+
+def check_output_path(path: str | os.PathLike[str], *, force: bool = False,
+                      option: str = "--out") -> Path:
+    """Validate an output path before any work is done.
+
+    Parameters
+    ----------
+    path : path-like
+        Where the output will be written.
+    force : bool
+        Allow replacing an existing regular file.
+    option : str
+        Name of the CLI option, for the error message.
+
+    Returns
+    -------
+    Path
+
+    Raises
+    ------
+    DataFileError
+        Empty path, a directory, or a parent folder that does not exist or is not writable.
+    OutputExistsError
+        The file exists and ``force`` is False.
+    """
+    text = os.fspath(path)
+    if not str(text).strip():
+        raise DataFileError(f"{option} is empty (fix: give a file name)")
+    p = Path(text)
+    if p.is_dir():
+        raise DataFileError(f"{option} {p}: is a folder (fix: give a file name inside it)")
+    parent = p.parent if str(p.parent) else Path(".")
+    if not parent.is_dir():
+        raise DataFileError(f"{option} {p}: folder {parent} does not exist (fix: create it)")
+    if not os.access(parent, os.W_OK):
+        raise DataFileError(f"{option} {p}: folder {parent} is not writable "
+                            "(fix: choose another folder)")
+    if p.exists() and not force:
+        raise OutputExistsError(f"{option} {p}: file exists; nothing was written "
+                                "(fix: choose another name, or add --force to replace it)")
+    return p
+
+
+@contextlib.contextmanager
+def atomic_output(path: str | os.PathLike[str], mode: str = "w", *,
+                  encoding: str | None = "utf-8") -> Iterator[Any]:
+    """Open a temporary sibling of ``path`` for writing; rename it onto ``path`` on success.
+
+    On an exception the temporary file is removed and ``path`` is untouched. Disk-full and
+    permission errors become one-line :class:`DataFileError` naming the file.
+    """
+    final = Path(path)
+    tmp = final.with_name(f".{final.name}.partial-{os.getpid()}")
+    binary = "b" in mode
+    try:
+        fh = open(tmp, mode, **({} if binary else {"encoding": encoding}))
+    except OSError as exc:
+        raise DataFileError(f"cannot write {final}: {exc.strerror or exc}") from None
+    try:
+        with fh:
+            yield fh
+        os.replace(tmp, final)
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise DataFileError(f"cannot write {final}: {exc.strerror or exc}"
+                            " (nothing was written under that name)") from None
+    except BaseException:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise
+
+
+def json_safe(obj: Any) -> Any:
+    """``obj`` with numpy scalars/arrays as Python values and NaN/inf as None (JSON null)."""
+    if isinstance(obj, dict):
+        return {str(k): json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [json_safe(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return json_safe(obj.tolist())
+    if isinstance(obj, (bool, np.bool_)):
+        return bool(obj)
+    if isinstance(obj, (int, np.integer)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        x = float(obj)
+        return x if math.isfinite(x) else None
+    if isinstance(obj, (complex, np.complexfloating)):
+        return {"re": json_safe(obj.real), "im": json_safe(obj.imag)}
+    if obj is None or isinstance(obj, str):
+        return obj
+    if isinstance(obj, os.PathLike):
+        return os.fspath(obj)
+    return str(obj)
+
+
+def dumps(obj: Any, **kw: Any) -> str:
+    """The one JSON encoder of fnsi-lab: :func:`json_safe`, then strict JSON (no NaN)."""
+    return json.dumps(json_safe(obj), allow_nan=False, **kw)
+
+
+def write_json(obj: Any, target: str | os.PathLike[str] | None, *, force: bool = True) -> None:
+    """Write ``obj`` as indented JSON to ``target`` ('-' = stdout, None = nowhere)."""
+    if target is None or target == "":
+        return
+    text = dumps(obj, indent=2)
+    if os.fspath(target) == "-":
+        print(text)
+        return
+    check_output_path(target, force=force, option="--json")
+    with atomic_output(target) as fh:
+        fh.write(text + "\n")
