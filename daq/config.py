@@ -263,7 +263,7 @@ def load_experiment(path: str | Path | None = None) -> ExperimentConfig:
 
 def packaged_experiment(name: str) -> Path | None:
     """Path of an experiment shipped in ``daq/data`` (None if there is none)."""
-    candidate = resources.files("daq") / "data" / name
+    candidate = resources.files("fnsi_lab.daq") / "data" / name
     try:
         return Path(str(candidate)) if candidate.is_file() else None
     except (FileNotFoundError, OSError):
