@@ -25,8 +25,12 @@ field and the fix; unknown keys are rejected (typos). Example (3-DOF chain, rela
     basis_oversample: 8          # basis functions on an 8x band-limited interpolation (§8.4)
     integration_min_snr: 4       # accelerations: lines below 4x their noise not integrated
 
-Other packages may add top-level sections through :data:`EXTRA_SECTIONS` (the robust
-pipeline adds its own keys there); their parsed values land in ``IdentConfig.extra``.
+    auto:                        # options of the robust pipeline (--auto; docs/robust.md)
+      top_n: 3                   # e.g. keep exactly the 3 most dominant modes
+      orders: "2:40"             # order sweep (same syntax as --orders)
+
+The ``auto:`` section is parsed here, into :class:`fnsi_lab.ident.options.AutoOptions`
+(``IdentConfig.auto``), whatever module is imported first.
 """
 
 from __future__ import annotations
@@ -34,16 +38,14 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from fnsi_lab.errors import ConfigError
 from fnsi_lab.validate import Section, load_yaml
 from fnsi_lab.ident.basis import KINDS, Nonlinearity
 from fnsi_lab.ident.errors import IdentConfigError, IdentError
+from fnsi_lab.ident.options import AutoOptions, parse_orders
 from fnsi_lab.ident.periodic import OUTPUT_QUANTITIES
-
-#: Top-level key -> parser(Section of the whole file, key) -> value stored in ``extra[key]``.
-EXTRA_SECTIONS: dict[str, Callable[[Section, str], Any]] = {}
 
 WEIGHTINGS = ("auto", "none", "noise")
 
@@ -78,8 +80,9 @@ class IdentConfig:
     bilinear_period_s: float | None = None
     basis_oversample: int = 8
     integration_min_snr: float | None = 4.0
+    auto: AutoOptions = field(default_factory=AutoOptions)
+    orders: tuple[int, ...] | None = None
     file: str | None = None
-    extra: dict = field(default_factory=dict)
 
     @property
     def driving_points(self) -> dict[str, str | None]:
@@ -170,6 +173,27 @@ def _nonlinearity(sec: Section, index: int) -> Nonlinearity:
         raise sec.error(None, str(exc)) from None
 
 
+def _auto_section(sec: Section) -> dict:
+    """``auto:`` -> ``{'auto': AutoOptions, 'orders': tuple | None}`` (``orders`` is the sweep)."""
+    raw = sec.raw("auto", None)
+    if raw is None:
+        return {}
+    if not isinstance(raw, dict):
+        raise sec.error("auto", "must be a mapping of robust-pipeline options",
+                        fix="e.g. auto: {top_n: 3, orders: '2:40'}")
+    raw = dict(raw)
+    orders = raw.pop("orders", None)
+    try:
+        out: dict = {"auto": AutoOptions.from_dict(raw)}
+        if orders is not None:
+            out["orders"] = tuple(parse_orders(orders))
+    except (IdentError, TypeError) as exc:
+        raise IdentConfigError(str(exc), file=sec.file, field="auto",
+                               fix="allowed keys: orders, "
+                               + ", ".join(AutoOptions.__dataclass_fields__)) from None
+    return out
+
+
 def parse_ident_config(data: Any, *, file: str | None = None) -> IdentConfig:
     """Validate a parsed YAML mapping into :class:`IdentConfig`.
 
@@ -223,8 +247,7 @@ def parse_ident_config(data: Any, *, file: str | None = None) -> IdentConfig:
             bilinear_period_s=sec.number("bilinear_period_s", None, positive=True),
             basis_oversample=sec.integer("basis_oversample", 8, minimum=1),
             integration_min_snr=sec.number("integration_min_snr", 4.0, nonnegative=True),
-            file=file,
-            extra={k: parser(sec, k) for k, parser in EXTRA_SECTIONS.items() if sec.has(k)})
+            file=file, **_auto_section(sec))
         sec.finish()
         return cfg
     except IdentConfigError:

@@ -1,0 +1,158 @@
+"""Fast unweighted B, D estimation for the order sweep of the robust pipeline.
+
+The sweep needs the model error V(n) of every order; :func:`fast_estimate_bd` gives the
+same least-squares answer as :func:`fnsi_lab.ident.fnsi.estimate_bd` (unweighted) at the cost
+of one normal-matrix product per order (docs/robust.md, "Performance").
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.linalg as sla
+
+from fnsi_lab.ident import order_selection as osel
+from fnsi_lab.ident.errors import IdentError
+
+__all__ = ["fast_estimate_bd", "model_at_order_fast", "model_output", "model_error"]
+
+#: Eigenvector condition number above which the sweep falls back to the core's estimate_bd.
+_FAST_COND_LIMIT = 1e8
+
+
+def fast_estimate_bd(a_d, c_d, data, *, d_zero: bool = False, refine: int = 2):
+    """Unweighted ``B``, ``D`` least squares in modal coordinates, BLAS-only (spec §1.4).
+
+    Same problem and result as :func:`ident.fnsi.estimate_bd` with ``weighted=False``
+    (the oracle in the tests), organised so that one order costs one
+    ``(F, m_e n)^H (F, m_e n)`` product.
+
+    Parameters
+    ----------
+    a_d : ndarray, shape (n, n)
+    c_d : ndarray, shape (p, n)
+    data : FrequencyData
+    d_zero : bool
+    refine : int
+        Steps of iterative refinement (residual in the original form).
+
+    Returns
+    -------
+    (b_d, d_d) : ndarrays, shapes (n, m_e), (p, m_e), physical basis units;
+        or None when ``A_d``'s eigenvectors are too ill-conditioned (caller falls back).
+
+    Notes
+    -----
+    ``Y_k = C_hat diag(w_k) B_hat E_k + D E_k``, ``w_k = 1/(z_k - mu)``, ``B_hat = Phi^-1 B``.
+    With ``U[k, (j, a)] = E_kj w_ka`` and ``G = C_hat^H C_hat``:
+    ``N_BB = (U^H U) .* G`` (blockwise), ``N_BD[(j,a),(l,i)] = conj(C_hat[i,a]) (U^H E)[(j,a),l]``,
+    ``N_DD = (E^H E) (x) I_p``; the real unknowns follow from ``vec B_hat = (I (x) Phi^-1) vec B``
+    and real parts (the lines are the positive-frequency half of a real problem).
+    """
+    a_d = np.asarray(a_d, float)
+    c_d = np.asarray(c_d, float)
+    n = a_d.shape[0]
+    p, me = c_d.shape[0], data.E.shape[1]
+    mu, phi = np.linalg.eig(a_d)
+    if not np.isfinite(np.linalg.cond(phi)) or np.linalg.cond(phi) > _FAST_COND_LIMIT:
+        return None
+    pinv = np.linalg.inv(phi)
+    ch = c_d @ phi
+    E, Y, z = data.E, data.Y, data.z
+    F = z.size
+    w = 1.0 / (z[:, None] - mu[None, :])                        # (F, n)
+    U = (E[:, :, None] * w[:, None, :]).reshape(F, me * n)      # (F, (j,a))
+    G = ch.conj().T @ ch                                         # (n, n)
+    Nbb = (U.conj().T @ U).reshape(me, n, me, n) * G[None, :, None, :]
+    # to real B coordinates: block (j,l) -> Pinv^H Nbb_jl Pinv
+    Nbb = np.einsum("ia,jalb,bk->jilk", pinv.conj().T, Nbb, pinv, optimize=True)
+    nb = me * n
+    if d_zero:
+        Nr = Nbb.reshape(nb, nb).real
+    else:
+        UE = (U.conj().T @ E).reshape(me, n, me)                 # [(j,a), l]
+        Nbd = UE[:, :, :, None] * ch.conj().T[None, :, None, :]  # (j, a, l, i)
+        Nbd = np.einsum("ia,jalm->jilm", pinv.conj().T, Nbd, optimize=True)
+        Ndd = np.einsum("jl,im->jilm", E.conj().T @ E, np.eye(p))
+        nd = me * p
+        Nc = np.zeros((nb + nd, nb + nd), complex)
+        Nc[:nb, :nb] = Nbb.reshape(nb, nb)
+        Nc[:nb, nb:] = Nbd.reshape(nb, nd)
+        Nc[nb:, :nb] = Nbd.reshape(nb, nd).conj().T
+        Nc[nb:, nb:] = Ndd.reshape(nd, nd)
+        Nr = Nc.real
+    Nr = 0.5 * (Nr + Nr.T)
+
+    def rhs(R):
+        Z = R @ ch.conj()                                        # (F, n)
+        rb = (E.conj().T @ (w.conj() * Z))                       # (me, n) modal
+        rb = (rb @ pinv.conj()).reshape(-1)                      # to real coordinates
+        if d_zero:
+            return rb.real
+        rd = (E.conj().T @ R).reshape(-1)                        # (me, p)
+        return np.concatenate([rb.real, rd.real])
+
+    def predict(theta):
+        B = theta[:nb].reshape(me, n).T
+        out = ((E @ B.T @ pinv.T) * w) @ ch.T
+        if not d_zero:
+            D = theta[nb:].reshape(me, p).T
+            out = out + E @ D.T
+        return out
+
+    d = np.sqrt(np.abs(np.diag(Nr)))
+    d[d == 0] = 1.0
+    Ns = Nr / np.outer(d, d)
+    try:
+        cho = sla.cho_factor(Ns, check_finite=False)
+        solve = lambda r: sla.cho_solve(cho, r / d, check_finite=False) / d  # noqa: E731
+    except np.linalg.LinAlgError:
+        lu = sla.lu_factor(Ns, check_finite=False)
+        solve = lambda r: sla.lu_solve(lu, r / d, check_finite=False) / d  # noqa: E731
+    theta = solve(rhs(Y))
+    for _ in range(refine):
+        theta = theta + solve(rhs(Y - predict(theta)))
+    b = theta[:nb].reshape(me, n).T * data.input_scale[None, :]
+    dd = (np.zeros((p, me)) if d_zero else theta[nb:].reshape(me, p).T) * data.input_scale[None, :]
+    return b, dd
+
+
+def model_at_order_fast(decomp, data, order, *, d_zero=False, weighted_bd=True):
+    """:func:`ident.fnsi.model_at_order` with :func:`fast_estimate_bd` for B, D.
+
+    ``A`` and ``C`` always come from ``decomp`` (weighted SVD if it was). ``B``, ``D`` use the
+    fast unweighted routine unless the decomposition is weighted and ``weighted_bd``.
+    """
+    from fnsi_lab.ident import fnsi
+    if decomp.weighted and weighted_bd:
+        return fnsi.model_at_order(decomp, data, order, d_zero=d_zero)
+    n = int(order)
+    if not 1 <= n <= decomp.max_order:
+        raise IdentError(f"order {n} is outside 1..{decomp.max_order} (max order of this "
+                         "decomposition)")
+    a_d, c_d = fnsi.state_matrices(decomp, n)
+    bd = fast_estimate_bd(a_d, c_d, data, d_zero=d_zero)
+    if bd is None:
+        b_d, d_d = fnsi.estimate_bd(a_d, c_d, data, d_zero=d_zero, weighted=False)
+    else:
+        b_d, d_d = bd
+    return fnsi.make_model(a_d, b_d, c_d, d_d, sample_rate_hz=data.sample_rate_hz,
+                           n_inputs=data.n_inputs, input_names=data.extended_input_names,
+                           output_names=data.output_names, time_base=data.time_base,
+                           bilinear_period_s=data.bilinear_period_s)
+
+
+def model_output(model, data, mask=slice(None)):
+    """Steady-state output ``G_d(z_k) E_k`` on the lines of ``mask`` (modal form, O(F n (p + m_e)))."""
+    mu, phi = np.linalg.eig(model.a_d)
+    ch = model.c_d @ phi
+    bh = np.linalg.solve(phi, model.b_d.astype(complex))
+    Ephys = data.E_physical[mask]
+    z = data.z[mask]
+    X = (bh @ Ephys.T).T / (z[:, None] - mu[None, :])             # (F, n)
+    return X @ ch.T + Ephys @ model.d_d.T
+
+
+def model_error(model, data, mask):
+    """V(n) over ``mask`` (spec §3 shortcut in modal form)."""
+    return osel.relative_model_error(data.Y[mask], model_output(model, data, mask))
+
