@@ -15,6 +15,8 @@ def _acquire(args: argparse.Namespace) -> int:
     from fnsi_lab.daq.config import load_experiment
 
     config = load_experiment(args.config)
+    if config.excitation is not None and config.excitation.levels:
+        return _acquire_levels(args, config)
     output = args.out or config.output
     total = None
     if config.excitation is not None and config.source.kind in ("simulated", "smallsat"):
@@ -35,6 +37,34 @@ def _acquire(args: argparse.Namespace) -> int:
     if not args.no_info:
         from fnsi_lab.daq.recording.info import format_info, recording_info
         print(format_info(recording_info(output)))
+    return 0
+
+
+def _acquire_levels(args: argparse.Namespace, config: Any) -> int:
+    """``excitation.levels``: one recording per force level in a campaign folder."""
+    from pathlib import Path
+
+    from fnsi_lab.daq.acquisition import record_experiment
+    from fnsi_lab.outputs import check_output_path
+
+    folder = Path(args.out or Path(config.output).with_suffix(""))
+    if folder.suffix == ".mcap":
+        raise config.error("excitation.levels", f"--out {folder}: a level sweep records one "
+                           "file per level into a folder",
+                           fix="give a folder name for --out, e.g. --out campaign/")
+    folder.mkdir(parents=True, exist_ok=True)
+    runs = config.level_runs(folder)
+    for _, run in runs:  # refuse before recording anything
+        check_output_path(run.output, force=args.force)
+    for i, (level, run) in enumerate(runs, 1):
+        if not args.quiet:
+            print(f"level {i}/{len(runs)}: {level:g} RMS -> {run.output}", file=sys.stderr)
+        report = record_experiment(run, run.output, realtime=args.realtime)
+        print(report.summary())
+        if report.interrupted:
+            return 130
+    print(f"campaign folder {folder}: {len(runs)} recordings "
+          f"(next: fnsi-lab batch {folder} --config IDENT.yaml --auto --out {folder}/campaign.parquet)")
     return 0
 
 
@@ -82,13 +112,16 @@ def register(sub: argparse._SubParsersAction) -> None:
         epilog="examples:\n"
                "  fnsi-lab acquire --out smallsat.mcap\n"
                "  fnsi-lab acquire --config my_rig.yaml --realtime   # pace as hardware would\n"
-               "  fnsi-lab acquire --config lumped.yaml              # packaged small model\n")
+               "  fnsi-lab acquire --config lumped.yaml              # packaged small model\n"
+               "  fnsi-lab acquire --config sweep.yaml --out campaign/  # excitation.levels: one file per level\n")
     p.add_argument("--config", metavar="FILE.yaml", help="experiment YAML (default: packaged smallsat.yaml)")
     p.add_argument("--out", metavar="FILE.mcap", help="output file (default: the config's 'output')")
     p.add_argument("--realtime", action="store_true",
                    help="pace a simulated source at wall-clock speed, as hardware would deliver it")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--no-info", action="store_true", help="do not print the recording summary afterwards")
+    p.add_argument("--force", action="store_true",
+                   help="replace existing recordings of a level sweep (excitation.levels)")
     p.set_defaults(handler=_acquire)
 
     p = sub.add_parser(

@@ -61,6 +61,9 @@ class ExcitationConfig:
         Seed of the phases (reproducible runs).
     phases : {'random', 'schroeder'}
         Phase law.
+    levels : tuple of float
+        Force levels (RMS, unit of the force channel) of a level sweep: ``acquire`` then
+        records one file per level with the same phases (empty: one run at ``rms``).
     """
 
     band_hz: tuple[float, float]
@@ -72,13 +75,17 @@ class ExcitationConfig:
     seed: int | None = 0
     phases: Literal["random", "schroeder"] = "random"
     kind: Literal["multisine"] = "multisine"
+    levels: tuple[float, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able form."""
-        return {"kind": self.kind, "band_hz": list(self.band_hz), "rms": self.rms,
-                "samples_per_period": self.samples_per_period, "periods": self.periods,
-                "transient_periods": self.transient_periods,
-                "realizations": self.realizations, "seed": self.seed, "phases": self.phases}
+        out = {"kind": self.kind, "band_hz": list(self.band_hz), "rms": self.rms,
+               "samples_per_period": self.samples_per_period, "periods": self.periods,
+               "transient_periods": self.transient_periods,
+               "realizations": self.realizations, "seed": self.seed, "phases": self.phases}
+        if self.levels:
+            out["levels"] = list(self.levels)
+        return out
 
 
 @dataclass(frozen=True)
@@ -133,6 +140,22 @@ class ExperimentConfig:
         """A copy writing to another file."""
         return replace(self, output=str(output))
 
+    def level_runs(self, folder: str | Path) -> list[tuple[float, "ExperimentConfig"]]:
+        """One single-level experiment per ``excitation.levels`` entry, writing into ``folder``.
+
+        Each run keeps every setting (phases included, so the levels differ only by a
+        scale factor) and records ``<folder>/<name>-rms<level>.mcap``. Empty when the
+        experiment has no level sweep.
+        """
+        if self.excitation is None or not self.excitation.levels:
+            return []
+        runs = []
+        for level in self.excitation.levels:
+            excitation = replace(self.excitation, rms=float(level), levels=())
+            out = Path(folder) / f"{self.name}-rms{level:g}.mcap"
+            runs.append((float(level), replace(self, excitation=excitation, output=str(out))))
+        return runs
+
 
 # ---------------------------------------------------------------------------- parsing
 def _parse_excitation(sec: Section, sample_rate_hz: float) -> ExcitationConfig:
@@ -165,15 +188,24 @@ def _parse_excitation(sec: Section, sample_rate_hz: float) -> ExcitationConfig:
     seed = sec.raw("seed", 0)
     if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int) or seed < 0):
         raise sec.error("seed", f"expected a whole number >= 0 or null, got {seed!r}")
+    levels = sec.numbers("levels", None) or ()
+    if any(not level > 0 for level in levels):
+        raise sec.error("levels", f"every level must be an RMS > 0, got {list(levels)}",
+                        fix="list positive force RMS values, e.g. [10, 50, 100]")
+    if len(set(levels)) != len(levels):
+        raise sec.error("levels", f"repeated level in {list(levels)}",
+                        fix="list each force level once")
     exc = ExcitationConfig(
         band_hz=(band[0], band[1]),
-        rms=sec.number("rms", positive=True),
+        # with a level sweep, rms is the first level unless given
+        rms=sec.number("rms", levels[0], positive=True) if levels else sec.number("rms", positive=True),
         samples_per_period=n,
         periods=periods,
         transient_periods=transient,
         realizations=sec.integer("realizations", 1, minimum=1),
         seed=seed,
         phases=sec.string("phases", "random", choices=("random", "schroeder")),  # type: ignore[arg-type]
+        levels=tuple(levels),
     )
     sec.finish()
     return exc
