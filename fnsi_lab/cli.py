@@ -18,7 +18,7 @@ from fnsi_lab import __version__
 from fnsi_lab.errors import FnsiLabError
 
 #: Modules that contribute subcommands, in help order.
-COMMAND_MODULES = ("fnsi_lab.daq.cli", "fnsi_lab.ident.cli", "fnsi_lab.replay.cli", "fnsi_lab.viewer.cli")
+COMMAND_MODULES = ("fnsi_lab.daq.cli", "fnsi_lab.daq.drive_cli", "fnsi_lab.ident.cli", "fnsi_lab.replay.cli", "fnsi_lab.viewer.cli")
 
 EPILOG = """\
 examples:
