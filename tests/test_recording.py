@@ -90,7 +90,7 @@ def test_channel_table_in_channel_metadata_and_record(write_recording):
     assert table == [c.to_dict() for c in make_channels()]
     assert json.loads(records["fnsi_lab.channels"]["json"]) == table
     assert set(records) >= {"fnsi_lab.experiment", "fnsi_lab.channels", "fnsi_lab.excitation"}
-    assert all(set(v) == {"json"} for v in records.values())
+    assert all(set(v) == {"json", "crc32"} for v in records.values())
     assert summary.schemas[ch.schema_id].encoding == "protobuf"
 
 
@@ -415,7 +415,7 @@ def test_damaged_chunk_is_reported_with_crc_checks(write_recording, compression)
     data = bytearray(path.read_bytes())
     data[ci.chunk_start_offset + ci.chunk_length - 10] ^= 0x01  # inside the compressed data
     path.write_bytes(bytes(data))
-    with pytest.raises(RecordingError, match="damaged data") as ei:
-        with open_recording(path, validate_crcs=True) as rec:
+    with pytest.raises(RecordingError, match="damaged chunk 2 of") as ei:
+        with open_recording(path) as rec:  # CRC checks are on by default
             list(rec.iter_blocks())
     assert "fnsi-lab recover" in _one_line(ei.value, path)

@@ -38,7 +38,8 @@ def test_recover_complete_file_is_identical(write_recording, tmp_path):
     path, blocks = write_recording(attachments=[("a.bin", "application/octet-stream", b"\0\1")])
     report = recover(path, tmp_path / "copy.mcap")
     assert report.complete and report.messages == len(blocks) and report.attachments == 1
-    assert report.metadata == 3  # experiment, channels, excitation
+    with open(path, "rb") as f:
+        assert report.metadata == len(list(make_reader(f).iter_metadata()))
     with open_recording(path) as a, open_recording(tmp_path / "copy.mcap") as b:
         assert a.metadata == b.metadata and a.channels == b.channels
         assert a.attachments() == b.attachments()
@@ -59,13 +60,15 @@ def test_recover_truncated_at_many_offsets(write_recording, tmp_path):
                    *rng.integers(first_chunk_start, ends[-1][0], 20).tolist()})
     out = tmp_path / "out.mcap"
     broken = tmp_path / "broken.mcap"
+    with open(path, "rb") as f:
+        n_metadata = len(list(make_reader(f).iter_metadata()))
     for cut in cuts:
         broken.write_bytes(data[:cut])
         report = recover(broken, out)
         expected = max((n for end, n in ends if end <= cut), default=0)
         assert report.messages == expected, f"cut at {cut}"
         assert not report.complete and report.bytes_recovered <= cut
-        assert report.attachments == 1 and report.metadata == 3
+        assert report.attachments == 1 and report.metadata == n_metadata
         if expected == 0:
             continue
         with open_recording(out) as rec:
@@ -81,7 +84,7 @@ def test_recover_truncated_at_many_offsets(write_recording, tmp_path):
     assert recover(broken, out).messages == len(blocks)
 
 
-def test_recover_stops_at_a_corrupt_chunk(write_recording, tmp_path):
+def test_recover_skips_a_corrupt_chunk_and_keeps_the_rest(write_recording, tmp_path):
     path, blocks = write_recording(n_periods=10, chunk_size=3_000)
     data = bytearray(path.read_bytes())
     ends = _chunk_ends(path)
@@ -91,8 +94,12 @@ def test_recover_stops_at_a_corrupt_chunk(write_recording, tmp_path):
     broken = tmp_path / "corrupt.mcap"
     broken.write_bytes(bytes(data[:-200]))
     report = recover(broken, tmp_path / "out.mcap")
-    assert report.messages == ends[2][1]
-    assert "damaged record" in report.stop_reason
+    in_4th = ends[3][1] - ends[2][1]
+    assert report.messages == ends[-1][1] - in_4th  # every chunk but the damaged one
+    ((a, b, why),) = report.damaged  # the 4th chunk record, exactly
+    assert start4 < a < end4 and b == end4 and "chunk" in why
+    assert report.bytes_skipped == b - a
+    assert report.seconds_skipped == pytest.approx(in_4th * blocks[0].n_samples / 1000.0)
 
 
 def test_recover_bad_inputs(tmp_path, write_recording):

@@ -24,6 +24,10 @@ class UnfinishedRecordingError(RecordingError):
     """The MCAP file has no footer (writer crashed or was killed): run ``fnsi-lab recover``."""
 
 
+class DamagedRecordingError(RecordingError):
+    """A CRC mismatch or an unparsable record inside a recording: run ``fnsi-lab recover``."""
+
+
 class WrongSchemaError(RecordingError):
     """A valid MCAP file without the fnsi-lab sample topic or with another schema."""
 

@@ -30,10 +30,21 @@ from mcap.summary import Summary
 from fnsi_lab.daq.block import Block
 from fnsi_lab.daq.channels import ChannelInfo
 from fnsi_lab.daq.recording import schema, topics
-from fnsi_lab.daq.recording.errors import (MissingChannelsError, NotMcapError, RecordingError,
-                                  RecordingNotFoundError, UnfinishedRecordingError,
-                                  WrongSchemaError)
+from fnsi_lab.daq.recording.errors import (DamagedRecordingError, MissingChannelsError,
+                                           NotMcapError, RecordingError,
+                                           RecordingNotFoundError, UnfinishedRecordingError,
+                                           WrongSchemaError)
 from fnsi_lab.daq.recording.recover import MCAP_MAGIC, RecoverReport, recover
+
+#: Whether reads check CRCs when the caller does not say (``fnsi-lab --no-crc-check``
+#: turns it off for one command).
+_CHECK_CRCS_BY_DEFAULT = True
+
+
+def set_default_crc_check(enabled: bool) -> None:
+    """Set whether :func:`open_recording` checks CRCs when ``validate_crcs`` is not given."""
+    global _CHECK_CRCS_BY_DEFAULT
+    _CHECK_CRCS_BY_DEFAULT = bool(enabled)
 
 
 def recovered_name(path: str | os.PathLike[str]) -> str:
@@ -64,18 +75,22 @@ class Recording:
     """
 
     def __init__(self, path: Path, stream: IO[bytes], *,
-                 salvaged: RecoverReport | None = None, validate_crcs: bool = False) -> None:
+                 salvaged: RecoverReport | None = None, validate_crcs: bool = True) -> None:
         self.path = path
         self._stream = stream
         self.salvaged = salvaged
         self.validate_crcs = validate_crcs
-        self._reader: SeekingReader = make_reader(stream)  # type: ignore[assignment]
+        self._reader: SeekingReader = make_reader(  # type: ignore[assignment]
+            stream, validate_crcs=validate_crcs)
         self._summary = self._load_summary()
+        if validate_crcs:
+            self._check_summary_crc()
         self.metadata = self._load_metadata()
         self._samples = self._find_samples_channel()
         self.channels = self._load_channels()
         self.sample_rate_hz = self._load_rate()
         self._first_t0_ns: int | None = None
+        self._log_offset_ns: int | None = None
 
     # ------------------------------------------------------------------ opening checks
     def _load_summary(self) -> Summary:
@@ -90,6 +105,81 @@ class Recording:
                 f"{self.path}: MCAP file without summary/index; run `fnsi-lab recover "
                 f"{self.path} {recovered_name(self.path)}` to re-index it")
         return summary
+
+    def _damaged(self, what: str) -> DamagedRecordingError:
+        return DamagedRecordingError(
+            f"{self.path}: {what}; run `fnsi-lab recover {self.path} {recovered_name(self.path)}` "
+            "to salvage every intact chunk (or add --no-crc-check to read it as it is)")
+
+    def _check_summary_crc(self) -> None:
+        """Check the footer's CRC of the summary section (schemas, channels, indexes)."""
+        size = self._stream.seek(0, io.SEEK_END)
+        footer_at = size - len(MCAP_MAGIC) - 29  # opcode, length, two offsets, CRC
+        self._stream.seek(footer_at)
+        raw = self._stream.read(29)
+        if len(raw) != 29 or raw[0] != Opcode.FOOTER:
+            raise self._damaged("damaged footer")
+        summary_start, _, crc = struct.unpack_from("<QQI", raw, 9)
+        if crc == 0 or summary_start == 0:
+            return  # the writer did not compute it
+        if not 0 < summary_start <= footer_at:
+            raise self._damaged("damaged footer (summary offset out of range)")
+        self._stream.seek(summary_start)
+        body = self._stream.read(footer_at - summary_start)
+        if zlib.crc32(raw[:25], zlib.crc32(body)) != crc:
+            raise self._damaged(f"damaged summary section (bytes {summary_start}-{footer_at}: "
+                                "CRC mismatch; channel table, statistics or chunk index)")
+
+    def _chunk_label(self, ci: Any) -> str:
+        """``chunk 12 of 49 (bytes a-b, 26.0-27.0 s)`` for error messages."""
+        order = sorted(self._summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
+        k = next((i for i, c in enumerate(order) if c.chunk_start_offset == ci.chunk_start_offset), 0)
+        t0 = min((c.message_start_time for c in order), default=0)
+        end = ci.chunk_start_offset + ci.chunk_length
+        return (f"chunk {k + 1} of {len(order)} (bytes {ci.chunk_start_offset}-{end}, "
+                f"{(ci.message_start_time - t0) / 1e9:.1f}-{(ci.message_end_time - t0) / 1e9:.1f} s)")
+
+    def _read_chunk(self, ci: Any) -> bytes:
+        """Decompressed content of the chunk of index entry ``ci``, CRC-checked if enabled."""
+        try:
+            self._stream.seek(ci.chunk_start_offset)
+            head = self._stream.read(9)
+            if len(head) != 9 or head[0] != Opcode.CHUNK:
+                raise McapError("no chunk record at the indexed offset")
+            chunk = Chunk.read(ReadDataStream(self._stream))
+            raw = _decompress(chunk)
+        except (McapError, ValueError, OSError, EOFError, zlib.error, struct.error) as exc:
+            raise self._damaged(f"damaged {self._chunk_label(ci)}: {exc}") from None
+        if (self.validate_crcs and chunk.uncompressed_crc
+                and zlib.crc32(raw) != chunk.uncompressed_crc):
+            raise self._damaged(f"damaged {self._chunk_label(ci)}: CRC mismatch")
+        return raw
+
+    def damage(self) -> list[str]:
+        """Check every chunk and attachment CRC; one line per damaged part (empty: intact).
+
+        The summary section and the metadata records were checked when the file was opened.
+        """
+        problems = []
+        for ci in sorted(self._summary.chunk_indexes, key=lambda c: c.chunk_start_offset):
+            try:
+                self._read_chunk(ci)
+            except DamagedRecordingError:
+                problems.append(f"damaged {self._chunk_label(ci)}")
+        for ai in self._summary.attachment_indexes:
+            if not self._attachment_intact(ai):
+                problems.append(f"damaged attachment {ai.name!r} (bytes {ai.offset}-"
+                                f"{ai.offset + ai.length})")
+        return problems
+
+    def _attachment_intact(self, ai: Any) -> bool:
+        """Check an attachment record's own CRC (mcap's reader skips it)."""
+        self._stream.seek(ai.offset)
+        raw = self._stream.read(ai.length)
+        if len(raw) != ai.length or len(raw) < 13 or raw[0] != Opcode.ATTACHMENT:
+            return False
+        crc = int.from_bytes(raw[-4:], "little")
+        return crc == 0 or zlib.crc32(raw[9:-4]) == crc
 
     def _find_samples_channel(self) -> Channel:
         found = [c for c in self._summary.channels.values() if c.topic == topics.TOPIC_SAMPLES]
@@ -122,13 +212,16 @@ class Recording:
                     continue
                 key = record.name[len(topics.METADATA_PREFIX):]
                 text = record.metadata.get(topics.METADATA_JSON_KEY)
+                crc = record.metadata.get(topics.METADATA_CRC_KEY)
+                if self.validate_crcs and crc is not None and (
+                        text is None or topics.metadata_crc(record.name, text) != crc):
+                    raise self._damaged(f"damaged metadata record {record.name!r} (CRC mismatch)")
                 if text is None:
                     continue
                 try:
                     out[key] = json.loads(text)  # later records win
                 except json.JSONDecodeError:
-                    raise RecordingError(f"{self.path}: metadata record {record.name!r} is "
-                                         "not valid JSON; the file is damaged") from None
+                    raise self._damaged(f"metadata record {record.name!r} is not valid JSON") from None
         except (McapError, OSError, ValueError) as exc:
             if isinstance(exc, RecordingError):
                 raise
@@ -225,8 +318,15 @@ class Recording:
         return tuple(c for c in self.channels if not c.is_force)
 
     def attachments(self) -> dict[str, bytes]:
-        """All attachments, name -> content."""
-        return {a.name: a.data for a in self._reader.iter_attachments()}
+        """All attachments, name -> content (each CRC-checked when ``validate_crcs``)."""
+        if self.validate_crcs:
+            for ai in self._summary.attachment_indexes:
+                if not self._attachment_intact(ai):
+                    raise self._damaged(f"damaged attachment {ai.name!r} (CRC mismatch)")
+        try:
+            return {a.name: a.data for a in self._reader.iter_attachments()}
+        except (McapError, ValueError, OSError, EOFError, struct.error) as exc:
+            raise self._damaged(f"unreadable attachment ({exc})") from None
 
     def attachment_info(self) -> list[dict[str, Any]]:
         """Name, media type and size of each attachment (from the index, no data read)."""
@@ -248,9 +348,8 @@ class Recording:
                     topics=[topic], log_time_order=False, starting_at=start_ns,
                     ending_before=end_ns):
                 yield message
-        except (McapError, ValueError, OSError, EOFError) as exc:
-            raise RecordingError(f"{self.path}: damaged data ({type(exc).__name__}: {exc}); "
-                                 f"try `fnsi-lab recover {self.path} {recovered_name(self.path)}`") from None
+        except (McapError, ValueError, OSError, EOFError, struct.error, zlib.error) as exc:
+            raise self._damaged(f"damaged data on {topic} ({type(exc).__name__}: {exc})") from None
 
     def _iter_samples(self, start_ns: int | None = None,
                       end_ns: int | None = None) -> Iterator[tuple[int, memoryview]]:
@@ -271,38 +370,30 @@ class Recording:
                    and (not ci.message_index_offsets or cid in ci.message_index_offsets)]
         indexes.sort(key=lambda ci: ci.chunk_start_offset)
         unpack = struct.Struct("<BQHIQQ").unpack_from  # opcode, length, channel, seq, log, pub
-        try:
-            for ci in indexes:
-                self._stream.seek(ci.chunk_start_offset + 9)  # skip opcode + record length
-                chunk = Chunk.read(ReadDataStream(self._stream))
-                raw = _decompress(chunk)
-                if (self.validate_crcs and chunk.uncompressed_crc
-                        and zlib.crc32(raw) != chunk.uncompressed_crc):
-                    raise McapError(f"CRC mismatch in the chunk at byte {ci.chunk_start_offset}")
-                buf = memoryview(raw)
-                pos, end = 0, len(buf)
-                while pos < end:
-                    opcode, length = buf[pos], int.from_bytes(buf[pos + 1:pos + 9], "little")
-                    nxt = pos + 9 + length
-                    if nxt > end:
-                        raise McapError("record runs past the end of its chunk")
-                    if opcode == Opcode.MESSAGE:
-                        _, _, channel, _, log_time, _ = unpack(buf, pos)
-                        if (channel == cid and (start_ns is None or log_time >= start_ns)
-                                and (end_ns is None or log_time < end_ns)):
-                            yield log_time, buf[pos + 31:nxt]
-                    pos = nxt
-        except (McapError, ValueError, OSError, EOFError, zlib.error, struct.error) as exc:
-            raise RecordingError(f"{self.path}: damaged data ({type(exc).__name__}: {exc}); "
-                                 f"try `fnsi-lab recover {self.path} {recovered_name(self.path)}`") from None
+        for ci in indexes:
+            buf = memoryview(self._read_chunk(ci))
+            pos, end = 0, len(buf)
+            while pos < end:
+                if pos + 9 > end:
+                    raise self._damaged(f"damaged {self._chunk_label(ci)}: cut record")
+                opcode, length = buf[pos], int.from_bytes(buf[pos + 1:pos + 9], "little")
+                nxt = pos + 9 + length
+                if nxt > end:
+                    raise self._damaged(f"damaged {self._chunk_label(ci)}: a record runs "
+                                        "past the end of its chunk")
+                if opcode == Opcode.MESSAGE:
+                    _, _, channel, _, log_time, _ = unpack(buf, pos)
+                    if (channel == cid and (start_ns is None or log_time >= start_ns)
+                            and (end_ns is None or log_time < end_ns)):
+                        yield log_time, buf[pos + 31:nxt]
+                pos = nxt
 
     def _decode(self, message: Any) -> Block:
         log_time, payload = message
         try:
             d = schema.decode_block(payload)
         except schema.MalformedMessageError as exc:
-            raise RecordingError(f"{self.path}: corrupt sample message at log time "
-                                 f"{log_time} ns ({exc})") from None
+            raise self._damaged(f"corrupt sample message at log time {log_time} ns ({exc})") from None
         if d.n_channels != len(self.channels):
             raise MissingChannelsError(
                 f"{self.path}: sample blocks have {d.n_channels} columns but the channel table "
@@ -317,8 +408,8 @@ class Recording:
         Parameters
         ----------
         start_ns, end_ns : int or None
-            Keep blocks whose ``t0_ns`` (log time) is in ``[start_ns, end_ns)``; only the
-            chunks overlapping the range are read.
+            Keep blocks whose ``t0_ns`` (sample clock) is in ``[start_ns, end_ns)``; only
+            the chunks overlapping the range are read.
 
         Yields
         ------
@@ -326,8 +417,25 @@ class Recording:
             ``data`` is float32, shape (n_samples, n_channels), exactly as recorded
             (a read-only view on the message bytes).
         """
+        if start_ns is not None or end_ns is not None:
+            # message log times are wall clock (0 offset in recordings made before that)
+            offset = self.log_time_offset_ns
+            start_ns = None if start_ns is None else start_ns + offset
+            end_ns = None if end_ns is None else end_ns + offset
         for message in self._iter_samples(start_ns, end_ns):
             yield self._decode(message)
+
+    @property
+    def log_time_offset_ns(self) -> int:
+        """Message log time minus payload ``t0_ns`` of the sample blocks (reads one block).
+
+        The recorder writes wall-clock UTC log times (acquisition start plus sample time);
+        recordings made before that used ``t0_ns`` itself, giving 0 here.
+        """
+        if self._log_offset_ns is None:
+            first = next(iter(self._iter_samples()), None)
+            self._log_offset_ns = 0 if first is None else first[0] - self._decode(first).t0_ns
+        return self._log_offset_ns
 
     def iter_events(self) -> Iterator[dict[str, Any]]:
         """Yield the recorded source events as dicts ``{time_ns, kind, detail}``."""
@@ -423,7 +531,7 @@ def _decompress(chunk: Chunk) -> bytes:
 
 # ---------------------------------------------------------------------------- opening
 def open_recording(path: str | os.PathLike[str], *, salvage: bool = False,
-                   validate_crcs: bool = False) -> Recording:
+                   validate_crcs: bool | None = None) -> Recording:
     """Open an fnsi-lab MCAP recording for reading.
 
     Parameters
@@ -434,8 +542,11 @@ def open_recording(path: str | os.PathLike[str], *, salvage: bool = False,
         If the file is unfinished (writer killed), recover its intact chunks in memory
         instead of raising; ``Recording.salvaged`` then holds the report.
     validate_crcs : bool, optional
-        Check the CRC of every chunk read (costs ~20 % of the read time); a mismatch
-        raises :class:`RecordingError`. Recovery always checks them.
+        Check the CRCs of the summary section and of every metadata record at opening, and
+        of every chunk and attachment read (costs ~20 % of the read time); a mismatch
+        raises :class:`DamagedRecordingError` naming the chunk, its bytes and seconds, and
+        the ``fnsi-lab recover`` command. Default: on (``set_default_crc_check``).
+        Recovery always checks them.
 
     Returns
     -------
@@ -454,6 +565,8 @@ def open_recording(path: str | os.PathLike[str], *, salvage: bool = False,
     MissingChannelsError
         No channel table, or one that does not match the blocks.
     """
+    if validate_crcs is None:
+        validate_crcs = _CHECK_CRCS_BY_DEFAULT
     p = Path(path)
     if not p.exists():
         raise RecordingNotFoundError(f"{p}: no such recording; check the path "

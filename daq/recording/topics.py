@@ -7,6 +7,8 @@ See ``docs/recording-format.md`` for what each record holds.
 
 from __future__ import annotations
 
+import zlib
+
 #: MCAP header ``profile``: empty, i.e. no ROS profile (the schema is plain protobuf).
 PROFILE = ""
 #: Prefix of the MCAP header ``library`` string (the software version follows).
@@ -56,6 +58,9 @@ FORMAT_VERSION = "1"
 METADATA_PREFIX = "fnsi_lab."
 #: The single key inside each metadata record; its value is JSON text.
 METADATA_JSON_KEY = "json"
+#: CRC-32 (8 hex digits) of ``name + "\n" + json text`` in each metadata record: MCAP
+#: metadata records carry no CRC of their own, so a flipped bit would go unnoticed.
+METADATA_CRC_KEY = "crc32"
 META_EXPERIMENT = "experiment"
 META_CHANNELS = "channels"
 META_EXCITATION = "excitation"
@@ -74,3 +79,8 @@ MEDIA_TYPE_NPZ = "application/x-npz"
 def metadata_record_name(key: str) -> str:
     """MCAP metadata record name of metadata key ``key`` (``fnsi_lab.<key>``)."""
     return METADATA_PREFIX + key
+
+
+def metadata_crc(name: str, text: str) -> str:
+    """CRC-32 of a metadata record's name and JSON text (``METADATA_CRC_KEY``), 8 hex digits."""
+    return f"{zlib.crc32((name + chr(10) + text).encode()):08x}"

@@ -188,7 +188,9 @@ class Recorder:
             text = dumps(value)
         except (TypeError, ValueError) as exc:
             raise ValueError(f"metadata {key!r} is not JSON-able: {exc}") from None
-        self._writer.add_metadata(topics.metadata_record_name(key), {topics.METADATA_JSON_KEY: text})
+        name = topics.metadata_record_name(key)
+        self._writer.add_metadata(name, {topics.METADATA_JSON_KEY: text,
+                                         topics.METADATA_CRC_KEY: topics.metadata_crc(name, text)})
 
     def _register_channels(self) -> None:
         sid = self._writer.register_schema(topics.SAMPLES_SCHEMA_NAME,
