@@ -1,0 +1,143 @@
+"""Reading NI TDMS files (LabVIEW, DAQmx loggers) with npTDMS.
+
+What is taken from the file:
+
+- every numeric channel of every group (a channel name present in two groups becomes
+  ``group/channel``); npTDMS applies DAQmx raw-data scaling;
+- the unit from the channel property ``unit_string`` (LabVIEW's standard property);
+- the sample rate from ``wf_increment`` (waveform channels), else from a time channel
+  (name ``time``/``t``, unit ``s``) which is then not imported;
+- ``samples_per_period`` and ``transient_periods`` from channel, group or file
+  properties of those names, when present.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import numpy as np
+
+from fnsi_lab.daq.formats.dof import parse_node_direction, quantity_from_unit
+from fnsi_lab.daq.formats.errors import LabFileError
+from fnsi_lab.daq.formats.table import LabChannel, LabTable, rate_from_increment
+
+_TIME_NAMES = {"time", "t", "time_s", "zeit"}
+
+
+def _where(obj: Any) -> str:
+    """'the file' or 'group NAME', for messages."""
+    return f"group {obj.name!r}" if hasattr(obj, "channels") and hasattr(obj, "name") else "the file"
+
+
+def _integer_property(objects: list[Any], key: str, path: str) -> int | None:
+    """First ``key`` property (case-insensitive) found on ``objects``, as a positive int."""
+    for obj in objects:
+        for name, value in obj.properties.items():
+            if name.lower() != key:
+                continue
+            try:
+                number = int(value)
+            except (TypeError, ValueError):
+                raise LabFileError(f"{path}: property {name!r} of {_where(obj)}: {value!r} is "
+                                   "not a whole number (fix: correct the file or give the option "
+                                   f"--{key.replace('_', '-')})") from None
+            if number < 0 or number != float(value):
+                raise LabFileError(f"{path}: property {name!r} of {_where(obj)}: {value!r} is "
+                                   "not a whole number >= 0")
+            return number
+    return None
+
+
+def read_tdms(path: str | os.PathLike[str]) -> LabTable:
+    """Read the channels of a TDMS file.
+
+    Parameters
+    ----------
+    path : path-like
+        The ``.tdms`` file (its ``.tdms_index`` is used when present).
+
+    Returns
+    -------
+    LabTable
+
+    Raises
+    ------
+    LabFileError
+        Not a TDMS file, no numeric channel, channels of different lengths or sample
+        rates, a non-finite sample.
+    """
+    from nptdms import TdmsFile
+
+    p = os.fspath(path)
+    try:
+        tdms = TdmsFile.read(p)
+    except Exception as exc:  # noqa: BLE001 - any unreadable file is one message
+        raise LabFileError(f"{p}: not a readable TDMS file ({type(exc).__name__}: {exc})") from None
+    found = [(g, c) for g in tdms.groups() for c in g.channels()]
+    counts: dict[str, int] = {}
+    for _, c in found:
+        counts[c.name] = counts.get(c.name, 0) + 1
+    columns: list[np.ndarray] = []
+    channels: list[LabChannel] = []
+    rates: list[tuple[str, float]] = []
+    time_column: tuple[str, np.ndarray] | None = None
+    notes: list[str] = []
+    for group, ch in found:
+        name = ch.name if counts[ch.name] == 1 else f"{group.name}/{ch.name}"
+        values = ch[:]
+        if values.dtype.kind not in "fiu":
+            notes.append(f"channel {name!r} skipped: {values.dtype} data")
+            continue
+        unit = str(ch.properties.get("unit_string", "") or "").strip()
+        if ch.name.strip().lower() in _TIME_NAMES and unit in ("s", ""):
+            time_column = (name, np.asarray(values, float))
+            continue
+        if "wf_increment" in ch.properties:
+            rates.append((name, rate_from_increment(float(ch.properties["wf_increment"]), path=p,
+                                                    field=f"channel {name!r}: wf_increment")))
+        where = parse_node_direction(name)
+        channels.append(LabChannel(name=name, unit=unit, quantity=quantity_from_unit(unit),
+                                   node=where[0] if where else "",
+                                   direction=where[1] if where else ""))
+        columns.append(np.asarray(values, dtype=np.float64))
+    if not columns:
+        raise LabFileError(f"{p}: no numeric channel in the TDMS file (groups: "
+                           f"{[g.name for g in tdms.groups()]})")
+    lengths = {c.name: len(x) for c, x in zip(channels, columns)}
+    if len(set(lengths.values())) > 1:
+        first = channels[0].name
+        odd = next(n for n, k in lengths.items() if k != lengths[first])
+        raise LabFileError(f"{p}: channel {odd!r} has {lengths[odd]} samples but {first!r} has "
+                           f"{lengths[first]} (fix: export channels of one acquisition only)")
+    rate = None
+    if rates:
+        first_name, rate = rates[0]
+        for name, r in rates[1:]:
+            if abs(r - rate) > 1e-9 * rate:
+                raise LabFileError(f"{p}: channel {name!r}: wf_increment gives {r:.9g} Hz but "
+                                   f"channel {first_name!r} {rate:.9g} Hz (fix: export channels "
+                                   "of one sample rate)")
+    elif time_column is not None:
+        name, t = time_column
+        if len(t) >= 2:
+            steps = np.diff(t)
+            if not np.allclose(steps, steps[0], rtol=1e-6, atol=0):
+                raise LabFileError(f"{p}: time channel {name!r} is not equally spaced "
+                                   "(fix: resample, or give --fs HZ and drop the time channel)")
+            rate = rate_from_increment(float(np.mean(steps)), path=p,
+                                       field=f"time channel {name!r}")
+    data = np.column_stack(columns)
+    bad = ~np.isfinite(data)
+    if bad.any():
+        row, col = (int(i) for i in np.argwhere(bad)[0])
+        raise LabFileError(f"{p}: channel {channels[col].name!r}: sample {row} is {data[row, col]} "
+                           "(fix: remove or repair the gap before importing)")
+    scopes = [tdms] + list(tdms.groups())
+    return LabTable(
+        path=p, format="tdms", data=data, channels=tuple(channels), sample_rate_hz=rate,
+        samples_per_period=_integer_property(scopes, "samples_per_period", p),
+        transient_periods=_integer_property(scopes, "transient_periods", p),
+        properties={"groups": [g.name for g in tdms.groups()],
+                    "file_properties": {k: str(v) for k, v in tdms.properties.items()}},
+        notes=tuple(notes))
