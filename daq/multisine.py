@@ -72,7 +72,8 @@ def excited_lines(samples_per_period: int, sample_rate_hz: float,
 def multisine(samples_per_period: int, sample_rate_hz: float, band_hz: tuple[float, float],
               rms: float, *, n_periods: int = 1, n_realizations: int = 1,
               seed: int | None = 0,
-              phases: Literal["random", "schroeder"] = "random") -> Multisine:
+              phases: Literal["random", "schroeder"] = "random",
+              grid: Literal["full", "odd"] = "full") -> Multisine:
     """Generate a periodic multisine with a flat amplitude spectrum in ``band_hz``.
 
     Parameters
@@ -94,6 +95,9 @@ def multisine(samples_per_period: int, sample_rate_hz: float, band_hz: tuple[flo
     phases : {'random', 'schroeder'}, optional
         Uniform random phases in [0, 2 pi), or Schroeder's low-crest-factor law
         ``phi_k = -pi k (k - 1) / K``.
+    grid : {'full', 'odd'}, optional
+        Excite every line of the band, or only the odd ones (an odd multisine: the even
+        lines then show noise and even-order distortion, the lab's usual design).
 
     Returns
     -------
@@ -124,7 +128,11 @@ def multisine(samples_per_period: int, sample_rate_hz: float, band_hz: tuple[flo
         raise ValueError(f"rms must be > 0, got {rms}")
     if phases not in ("random", "schroeder"):
         raise ValueError(f"phases must be 'random' or 'schroeder', got {phases!r}")
+    if grid not in ("full", "odd"):
+        raise ValueError(f"grid must be 'full' or 'odd', got {grid!r}")
     lines = excited_lines(n, sample_rate_hz, band_hz)
+    if grid == "odd":
+        lines = lines[lines % 2 == 1]
     if lines.size == 0:
         raise ValueError(f"no DFT line of an {n}-sample period at {sample_rate_hz} Hz lies in {band_hz} Hz")
     rng = np.random.default_rng(seed)
