@@ -163,7 +163,7 @@ def main_bench(argv=None) -> int:
                     help="pacing of the latency run (1 = real time, the honest figure)")
     ap.add_argument("--results", action="store_true", help="append to bench/RESULTS.md")
     args = ap.parse_args(argv)
-    from fnsi_lab.replay.cli import parse_orders
+    from fnsi_lab.ident.options import parse_orders
 
     orders = parse_orders(args.orders)
     from fnsi_lab.blas import limit_blas_threads

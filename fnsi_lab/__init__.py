@@ -1,7 +1,30 @@
-"""fnsi-lab: command-line glue shared by the `daq`, `ident`, `replay` and `viewer` packages.
+"""fnsi-lab: nonlinear structural identification in the test lab.
 
-The science lives in those four packages; this package only holds the version, the root of
-the exception tree and the ``fnsi-lab`` command.
+Public API (docs/api.md)::
+
+    import fnsi_lab
+    fnsi_lab.acquire(out="run.mcap")                         # record an experiment
+    result = fnsi_lab.identify("run.mcap", config="smallsat39")   # FNSI, robust pipeline
+    result.order, result.modes, result.coefficients, result.to_json()
+    fnsi_lab.open_recording("run.mcap")                      # read a recording
+
+Sub-packages: :mod:`fnsi_lab.daq` (channels, sources, MCAP recording), :mod:`fnsi_lab.ident`
+(FNSI on arrays), :mod:`fnsi_lab.replay` (recordings as streams, the live service),
+:mod:`fnsi_lab.viewer` (Rerun). The API is imported lazily so that ``fnsi-lab --help`` and
+``import fnsi_lab`` stay fast.
 """
 
+from typing import Any
+
 __version__ = "0.1.0"
+
+__all__ = ["identify", "open_recording", "acquire", "load_config", "Identification",
+           "__version__"]
+
+
+def __getattr__(name: str) -> Any:
+    if name in ("identify", "open_recording", "acquire", "load_config", "Identification"):
+        from fnsi_lab import api
+
+        return getattr(api, name)
+    raise AttributeError(f"module 'fnsi_lab' has no attribute {name!r}")

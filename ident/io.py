@@ -1,6 +1,8 @@
-"""Reading the INPUT of ``fnsi-lab ident``: fnsi-lab MCAP, ``.npz`` or MATLAB ``.mat``.
+"""Identification input as arrays: :class:`IdentInput` and the user-data array format.
 
-Array files hold
+Reading files happens at the edge (:mod:`fnsi_lab.inputs`: fnsi-lab MCAP, ``.npz``,
+MATLAB ``.mat``); this module only validates arrays. The array format
+(:func:`input_from_arrays`) holds
   ``u``   forces, shape ``(n_samples,)`` or ``(n_samples, n_inputs)`` (also
           ``(n_periods, N, n_inputs)`` or ``(n_realizations, n_periods, N, n_inputs)``);
   ``y``   outputs, shape ``(n_samples, n_outputs)`` (same leading axes as ``u``);
@@ -9,15 +11,13 @@ Array files hold
   ``channels``        optional output names (default ``y0, y1, ...``);
   ``input_channels``  optional input names (default ``u0, ...``);
   ``quantity``        optional output quantity (displacement | velocity | acceleration).
-MCAP recordings are read with :func:`daq.recording.reader.read_periodic` (imported lazily,
-so ``ident`` itself needs only numpy and scipy).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -74,12 +74,24 @@ def _names(value: Any, n: int, prefix: str, what: str, path: str) -> tuple[str, 
     return tuple(names)
 
 
-def _from_arrays(arrays: dict, path: str, samples_per_period: int | None) -> IdentInput:
+def input_from_arrays(arrays: Mapping[str, Any], path: str = "",
+                      samples_per_period: int | None = None) -> IdentInput:
+    """An :class:`IdentInput` from the arrays of the user-data format (module docstring).
+
+    Raises
+    ------
+    IdentDataError
+        A missing array, a wrong shape or a bad value, in one line naming ``path``.
+    """
     for key in ("u", "y", "fs"):
         if key not in arrays:
             raise IdentDataError(f"{path}: missing array {key!r} (needs u, y, fs; optional N, "
                                  "channels, input_channels)")
-    fs = np.asarray(arrays["fs"], float).reshape(-1)
+    try:
+        fs = np.asarray(arrays["fs"], float).reshape(-1)
+    except (TypeError, ValueError):
+        raise IdentDataError(f"{path}: 'fs' must be one positive number (Hz), got "
+                             f"{np.asarray(arrays['fs'])!r}") from None
     if fs.size != 1 or not fs[0] > 0:
         raise IdentDataError(f"{path}: 'fs' must be one positive number, got {arrays['fs']!r}")
     N = samples_per_period
@@ -88,8 +100,11 @@ def _from_arrays(arrays: dict, path: str, samples_per_period: int | None) -> Ide
         if N is not None and N != n_file:
             raise IdentDataError(f"{path}: N={n_file} in the file but samples_per_period={N}")
         N = n_file
-    u = np.asarray(arrays["u"], float)
-    y = np.asarray(arrays["y"], float)
+    try:
+        u = np.asarray(arrays["u"], float)
+        y = np.asarray(arrays["y"], float)
+    except (TypeError, ValueError):
+        raise IdentDataError(f"{path}: 'u' and 'y' must be numeric arrays") from None
     if u.ndim == 2 and y.ndim == 2 and u.shape[0] != y.shape[0] and u.shape[1] == y.shape[0]:
         pass  # leave the error to the shape check below (no silent transposes)
     if u.ndim == 1:
@@ -114,79 +129,6 @@ def _from_arrays(arrays: dict, path: str, samples_per_period: int | None) -> Ide
                       output_channels=_names(arrays.get("channels"), y4.shape[3], "y",
                                              "channels", path),
                       output_quantity=q, path=path)
-
-
-def _from_mcap(path: str, samples_per_period: int | None) -> IdentInput:
-    try:
-        from fnsi_lab.daq.recording.reader import read_periodic
-    except ImportError as exc:  # pragma: no cover - daq is part of the install
-        raise IdentDataError(f"{path}: cannot read MCAP ({exc})") from None
-    rec = read_periodic(path, samples_per_period)
-    outs = tuple(getattr(c, "name", str(c)) for c in rec.output_channels)
-    ins = tuple(getattr(c, "name", str(c)) for c in rec.input_channels)
-    quants = {getattr(c, "quantity", None) for c in rec.output_channels}
-    q = quants.pop() if len(quants) == 1 else None
-    exc = np.asarray(rec.excited_lines, int) if rec.excited_lines is not None else None
-    return IdentInput(u=np.asarray(rec.u, float), y=np.asarray(rec.y, float),
-                      sample_rate_hz=float(rec.sample_rate_hz),
-                      samples_per_period=int(rec.samples_per_period), input_channels=ins,
-                      output_channels=outs, transient_periods=rec.transient_periods,
-                      excited_lines=exc if exc is not None and exc.size else None,
-                      output_quantity=q if q in OUTPUT_QUANTITIES else None, truth=rec.truth,
-                      path=path, notes=tuple(getattr(rec, "notes", ())))
-
-
-def load_input(path: str | Path, *, samples_per_period: int | None = None) -> IdentInput:
-    """Load an identification INPUT file (format from the extension).
-
-    Parameters
-    ----------
-    path : str or Path
-        ``.mcap`` (fnsi-lab recording), ``.npz`` or ``.mat``.
-    samples_per_period : int, optional
-        ``N`` (checked against the file's when both are given).
-
-    Returns
-    -------
-    IdentInput
-
-    Raises
-    ------
-    IdentDataError
-        Missing file, unknown extension, missing array, wrong shape (one line).
-    """
-    p = Path(path)
-    sp = str(p)
-    if not p.exists():
-        raise IdentDataError(f"{sp}: file not found")
-    ext = p.suffix.lower()
-    if ext == ".mcap":
-        return _from_mcap(sp, samples_per_period)
-    if ext == ".npz":
-        try:
-            with np.load(sp, allow_pickle=False) as z:
-                arrays = {k: z[k] for k in z.files}
-        except Exception as exc:  # noqa: BLE001 - any unreadable file is one message
-            raise IdentDataError(f"{sp}: not a readable .npz file ({exc})") from None
-        return _from_arrays(arrays, sp, samples_per_period)
-    if ext == ".mat":
-        import scipy.io
-        try:
-            raw = scipy.io.loadmat(sp, squeeze_me=False)
-        except Exception as exc:  # noqa: BLE001
-            raise IdentDataError(f"{sp}: not a readable MATLAB file ({exc}); v7.3 files are "
-                                 "HDF5: save with -v7") from None
-        arrays = {k: v for k, v in raw.items() if not k.startswith("__")}
-        for k in ("u", "y"):
-            if k in arrays and arrays[k].ndim == 2 and 1 in arrays[k].shape:
-                arrays[k] = arrays[k].reshape(-1)  # MATLAB vectors are 2-D
-        for k in ("channels", "input_channels"):
-            if k in arrays and arrays[k].dtype.kind in "US":
-                arrays[k] = np.array([str(s).strip() for s in np.atleast_1d(arrays[k].squeeze())])
-        if "quantity" in arrays:
-            arrays["quantity"] = str(np.asarray(arrays["quantity"]).squeeze())
-        return _from_arrays(arrays, sp, samples_per_period)
-    raise IdentDataError(f"{sp}: unknown format {ext!r} (use .mcap, .npz or .mat)")
 
 
 def select_channels(inp: IdentInput, *, outputs: Sequence[str] | None = None,

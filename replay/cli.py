@@ -16,8 +16,6 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-import numpy as np
-
 from fnsi_lab.errors import ConfigError
 from fnsi_lab.blas import limit_blas_threads
 
@@ -25,22 +23,6 @@ DEFAULT_ORDERS = "2:40"
 
 
 # ---------------------------------------------------------------------------- helpers
-def parse_orders(text: str) -> list[int]:
-    """``'2:40'`` -> 2..40 inclusive; ``'4,6,8'`` -> those orders."""
-    try:
-        if ":" in text:
-            a, b = (int(x) for x in text.split(":", 1))
-            out = list(range(a, b + 1))
-        else:
-            out = [int(x) for x in text.split(",") if x.strip()]
-    except ValueError:
-        out = []
-    if not out or min(out) < 1:
-        raise ConfigError(f"bad order list {text!r}", field="--orders",
-                          fix="write FIRST:LAST (e.g. 2:40) or a comma list (e.g. 4,6,8)")
-    return out
-
-
 def make_identifier(args: argparse.Namespace, metadata: dict[str, Any],
                     channels: Any = ()) -> tuple[Callable, str]:
     """The ``identify(record)`` of the run and a one-line description of it.
@@ -53,15 +35,14 @@ def make_identifier(args: argparse.Namespace, metadata: dict[str, Any],
 
     if getattr(args, "method", "auto") == "frf":
         return frf_identifier, "nonparametric FRF (fast)"
-    orders = parse_orders(getattr(args, "orders", DEFAULT_ORDERS) or DEFAULT_ORDERS)
     config = None
     if getattr(args, "ident", None):
-        from fnsi_lab.ident.config import load_ident_config, packaged_config
+        from fnsi_lab.api import load_config
 
-        path = Path(args.ident)
-        if not path.exists() and path.parent == Path("."):
-            path = packaged_config(args.ident)  # a packaged example by name
-        config = load_ident_config(path)
+        config = load_config(args.ident)  # a file, or a packaged example by name
+    orders = getattr(args, "orders", None)
+    if orders is None and (config is None or not config.orders):
+        orders = getattr(args, "default_orders", DEFAULT_ORDERS)
     return config_identifier(config, truth=metadata.get("truth"), orders=orders,
                              channels=channels, harmonics=getattr(args, "harmonics", 1.0))
 
@@ -123,6 +104,8 @@ class LiveRun:
         """Send the buffered blocks (call once more after the service has finished)."""
         if not self._buf:
             return
+        import numpy as np
+
         t0, first = self._buf[0]
         data = np.concatenate([b.data for _, b in self._buf], axis=0)
         self.vlog.log_signals(self.rec, data, t0, first.sample_rate_hz, self.groups,
@@ -234,6 +217,8 @@ def _finish_report(run: LiveRun, service: Any, sinks: Any, wall_s: float) -> Non
           f"{st.dropped_blocks} blocks dropped, {st.lost_samples} samples lost, "
           f"{st.failures} failures{(' (' + st.last_error + ')') if st.last_error else ''}")
     if lat:
+        import numpy as np
+
         print(f"latency end of period -> Rerun update: median {np.median(lat):.2f} s, "
               f"max {max(lat):.2f} s; wall time {wall_s:.1f} s")
     for note in sinks.notes:
@@ -379,8 +364,10 @@ def _common(p: argparse.ArgumentParser, orders: str = DEFAULT_ORDERS,
     g = p.add_argument_group("identification")
     g.add_argument("--ident", metavar="IDENT.yaml",
                    help="identification config (basis functions, band, options)")
-    g.add_argument("--orders", default=orders, metavar="FIRST:LAST",
-                   help=f"model orders of the sweep (default {orders})")
+    g.add_argument("--orders", default=None, metavar="FIRST:LAST",
+                   help=f"model orders of the sweep: FIRST:LAST, FIRST:LAST:STEP or a list "
+                        f"4,6,8 (default: the --ident file's auto.orders, else {orders})")
+    p.set_defaults(default_orders=orders)
     g.add_argument("--harmonics", type=float, default=harmonics, metavar="K",
                    help="without --ident: process the lines up to K times the highest excited "
                         "frequency, where the nonlinear distortion lives (5: the paper's "
@@ -481,5 +468,5 @@ def register(subparsers: Any) -> None:
     p.set_defaults(handler=_cmd_replay)
 
 
-__all__ = ["register", "parse_orders", "make_identifier", "format_table", "LiveRun"]
+__all__ = ["register", "make_identifier", "format_table", "LiveRun"]
 

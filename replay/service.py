@@ -653,88 +653,32 @@ def driving_point(output_channels: Sequence[ChannelInfo], input_channels: Sequen
 # ---------------------------------------------------------------------------- robust pipeline
 @dataclass(frozen=True)
 class AutoIdentification:
-    """What :func:`auto_identifier` returns: the pipeline result and the data it used.
+    """What :func:`config_identifier` returns for one snapshot.
 
     Attributes
     ----------
-    result : ident.auto.AutoResult
-    data : ident.periodic.FrequencyData
+    identification : fnsi_lab.ident.pipeline.Identification
+        The answer of the one entry point (:func:`fnsi_lab.ident.pipeline.identify_input`).
     coefficient_curves : dict
         ``{'full': {name: c(f)}, 'reduced': {name: c(f)}, 'frequency_hz': f}`` when the
-        coefficient step is available, else empty.
+        configuration has basis functions, else empty.
     exact_coefficients : dict
         Known coefficient values (simulations), name -> value.
     """
 
-    result: Any
-    data: Any
+    identification: Any
     coefficient_curves: dict
     exact_coefficients: dict
 
+    @property
+    def result(self) -> Any:
+        """The robust pipeline's :class:`~fnsi_lab.ident.auto_result.AutoResult`."""
+        return self.identification.auto
 
-def _names(record: Any) -> dict[str, list[str]]:
-    """Channel names of a PeriodicRecord (whose channel fields hold ChannelInfo objects)."""
-    return {"output_names": [getattr(c, "name", c) for c in record.output_channels],
-            "input_names": [getattr(c, "name", c) for c in record.input_channels]}
-
-
-def auto_identifier(*, prepare: Callable[[Any], Any] | None = None,
-                    options: Any = None, orders: Sequence[int] = range(2, 41),
-                    coefficients: Callable[[Any, Any], dict] | None = None,
-                    exact: Mapping[str, float] | None = None,
-                    spread: Callable[[Any], Callable | None] | None = None) -> Identifier:
-    """An ``identify(record)`` running :func:`ident.auto.identify_auto` on each snapshot.
-
-    Parameters
-    ----------
-    prepare : callable, optional
-        ``prepare(record) -> FrequencyData`` (basis functions, band...); default
-        :func:`ident.periodic.prepare_frequency_data` with no basis function.
-    options : ident.auto.AutoOptions or dict, optional
-    orders : sequence of int
-        Order sweep.
-    coefficients : callable, optional
-        ``coefficients(model, data) -> {name: complex ndarray (F,)}``: c_a(f) curves.
-    exact : mapping, optional
-        Known coefficient values to show next to the estimates.
-    spread : callable, optional
-        ``spread(data) -> (model -> rho) or None``: coefficient consistency for the order
-        selection (:func:`ident.coefficients.spread_function`).
-    """
-    from fnsi_lab.ident.auto import identify_auto
-    from fnsi_lab.ident.periodic import prepare_frequency_data
-
-    def default_prepare(record: Any) -> Any:
-        # processed band = the excited band; outputs all of one quantity
-        lines = np.asarray(record.excited_lines)
-        df = record.sample_rate_hz / record.samples_per_period
-        band = ((float(lines.min()) * df, float(lines.max()) * df) if lines.size
-                else (df, record.sample_rate_hz / 2 - df))
-        quantity = record.output_channels[0].quantity if record.output_channels else "displacement"
-        return prepare_frequency_data(record, band_hz=band, output_quantity=quantity,
-                                      **_names(record))
-
-    prep = prepare or default_prepare
-    orders = list(orders)
-
-    def identify(record: Any) -> AutoIdentification:
-        import warnings
-
-        with warnings.catch_warnings():  # steady-state warnings go to the status, not stderr
-            warnings.simplefilter("ignore")
-            data = prep(record)
-            result = identify_auto(data, options, orders=orders,
-                                   spread=spread(data) if spread is not None else None)
-        curves: dict = {}
-        if coefficients is not None:
-            curves["frequency_hz"] = data.frequencies_hz
-            curves["full"] = coefficients(result.full_model, data)
-            if result.reduced is not None:
-                curves["reduced"] = coefficients(result.reduced, data)
-        return AutoIdentification(result=result, data=data, coefficient_curves=curves,
-                                  exact_coefficients=dict(exact or {}))
-
-    return identify
+    @property
+    def data(self) -> Any:
+        """The :class:`~fnsi_lab.ident.periodic.FrequencyData` identified."""
+        return self.identification.data
 
 
 def auto_view(update: ServiceUpdate) -> dict[str, Any]:
@@ -843,182 +787,88 @@ def mode_table(res: Any) -> list[dict[str, Any]]:
 
 
 # ---------------------------------------------------------------------------- ident config
-def basis_from_truth(truth: Mapping[str, Any] | None) -> tuple[Any, ...]:
-    """Basis functions of a simulated recording's ``truth`` (its nonlinear elements).
-
-    Returns an empty tuple when the truth has none or describes an element this version
-    cannot express (the identification then stays linear).
-    """
-    from fnsi_lab.ident.basis import Nonlinearity
-
-    out = []
-    for el in (truth or {}).get("nonlinearities") or []:
-        try:
-            kind = el["kind"]
-            coeffs = dict(el.get("coefficients") or {})
-            kw: dict[str, Any] = {"name": el["name"], "kind": kind,
-                                  "channels": dict(el.get("channels") or el["dofs"])}
-            if kind == "polynomial":
-                kw.update(exponent=float(el.get("exponent", 3)), signed=bool(el.get("signed")),
-                          argument=el.get("argument", "displacement"))
-                truth_values: tuple = (float(next(iter(coeffs.values()))),) if coeffs else ()
-            elif kind == "trilinear":
-                kw["clearances"] = tuple(float(g) for g in el["clearances"])
-                truth_values = (float(coeffs["neg"]), float(coeffs["pos"]))
-            elif kind == "bilinear":
-                side = "neg" if "neg" in coeffs else "pos"
-                kw.update(side=side, clearance=float(el["clearances"][0]))
-                truth_values = (float(coeffs[side]),)
-            else:
-                truth_values = (float(next(iter(coeffs.values()))),) if coeffs else ()
-            out.append(Nonlinearity(**kw, truth=truth_values or None))
-        except (KeyError, TypeError, ValueError, StopIteration):
-            return ()
-    return tuple(out)
-
-
-def _active(basis: Sequence[Any], record: Any, quantity: str,
-            names: Mapping[str, list[str]]) -> tuple[Any, ...]:
-    """The elements of a truth-derived basis that act on these data.
-
-    A simulated structure may hold stops that the motion never reaches; their basis
-    columns are identically zero and cannot be identified, so they are left out (only
-    for displacement outputs and displacement-driven elements; others are kept).
-    """
-    if quantity != "displacement" or not basis:
-        return tuple(basis)
-    from fnsi_lab.ident.basis import evaluate_basis
-
-    q = np.asarray(record.y)[0, -1]  # last period of the first realization, (N, p)
-    kept = []
-    for nl in basis:
-        if nl.needs_velocity:
-            kept.append(nl)
-            continue
-        try:
-            h = evaluate_basis([nl], q, None, names["output_names"])
-        except Exception:
-            kept.append(nl)  # let the identification report it
-            continue
-        if np.any(h != 0):
-            kept.append(nl)
-    return tuple(kept)
-
-
 def config_identifier(config: Any = None, *, truth: Mapping[str, Any] | None = None,
-                      orders: Sequence[int] = range(2, 41), auto_options: Any = None,
-                      channels: Sequence[ChannelInfo] = (),
-                      harmonics: float = 1.0) -> tuple[Identifier, str]:
-    """``identify(record)`` from an :class:`ident.config.IdentConfig` (or the recording truth).
+                      orders: Sequence[int] | str | None = None,
+                      channels: Sequence[ChannelInfo] = (), harmonics: float = 1.0,
+                      use_truth: bool = True) -> tuple[Identifier, str]:
+    """``identify(record)`` running the one identification entry point on each snapshot.
+
+    Every snapshot goes through :func:`fnsi_lab.ident.pipeline.identify_input` with the
+    same configuration as ``fnsi-lab ident --auto`` would use (its ``auto:`` section
+    included), so live, replayed and offline results agree.
 
     Parameters
     ----------
     config : IdentConfig or None
-        Band, basis functions, driving points, output quantity, orders, weighting. None:
-        the excited band and, for simulated recordings, the basis of ``truth``.
+        Band, basis functions, driving points, options. None: the excited band and, for
+        simulated recordings, the basis of ``truth``
+        (:func:`fnsi_lab.ident.pipeline.default_config`).
     truth : mapping, optional
         Recording truth (nonlinear elements, exact coefficients).
-    orders : sequence of int
-        Order sweep when the config has no ``max_order``.
-    auto_options : AutoOptions or dict, optional
-        Options of :func:`ident.auto.identify_auto` (else ``config.extra['auto']``).
+    orders : str or sequence of int, optional
+        Order sweep; default the config's ``auto.orders``, else 2..40 (live default: a
+        period must be identified before the next one ends).
     channels : sequence of ChannelInfo
         The recording's channels (driving point when the config names none).
     harmonics : float
         Without a config and with basis functions: process the lines up to ``harmonics``
-        times the highest excited frequency (capped at 0.45 fs), where the nonlinear
-        distortion lives (the seed excites 5-50 Hz and processes 5-250 Hz: 5). 1 processes
-        the excited band only (fastest; the live default).
+        times the highest excited frequency (see ``default_config``). 1: the excited band.
+    use_truth : bool
+        False: no basis from the truth (a linear identification without a config).
 
     Returns
     -------
     (callable, str)
         The identifier and a one-line description.
     """
-    from fnsi_lab.ident.coefficients import nonlinear_coefficients
-    from fnsi_lab.ident.periodic import prepare_frequency_data
+    from dataclasses import replace
 
-    basis = tuple(config.nonlinearities) if config is not None else basis_from_truth(truth)
-    if config is not None and config.max_order:
-        orders = range(2, int(config.max_order) + 1)
-    orders = list(orders)
-    options: dict[str, Any] = {}
-    extra = getattr(config, "extra", {}) or {}
-    if auto_options is None and isinstance(extra.get("auto"), Mapping):
-        options.update(extra["auto"])
-    elif isinstance(auto_options, Mapping):
-        options.update(auto_options)
-    if config is not None:
-        if config.block_rows is not None:
-            options.setdefault("block_rows", config.block_rows)
-        if config.weighting == "none":
-            options.setdefault("weighted", False)
+    from fnsi_lab.ident.options import parse_orders
+    from fnsi_lab.ident.pipeline import default_config, identify_input
+    from fnsi_lab.inputs import input_from_record
+
+    if orders is not None:
+        sweep = parse_orders(orders)
+    elif config is not None and config.orders:
+        sweep = list(config.orders)
+    else:
+        sweep = list(range(2, 41))
     outputs = [c for c in channels if not c.is_force]
     inputs = [c for c in channels if c.is_force]
+    dp_name = outputs[driving_point(outputs, inputs)].name if outputs and inputs else None
 
-    def prepare(record: Any) -> Any:
-        quantity = (config.output_quantity if config is not None and config.output_quantity
-                    else record.output_channels[0].quantity)
-        lines = np.asarray(record.excited_lines)
-        df = record.sample_rate_hz / record.samples_per_period
-        if config is not None:
-            band = tuple(config.band_hz)
-        elif lines.size:
-            hi = float(lines.max()) * df
-            if basis and harmonics > 1:
-                hi = min(harmonics * hi, 0.45 * record.sample_rate_hz)
-            band = (float(lines.min()) * df, hi)
-        else:
-            band = (df, record.sample_rate_hz / 2 - df)
-        kw: dict[str, Any] = {}
-        if config is not None:
-            kw.update(highpass_hz=config.highpass_hz,
-                      steady_state_tolerance=config.steady_state_tolerance,
-                      basis_oversample=config.basis_oversample,
-                      integration_min_snr=config.integration_min_snr or None)
-            if config.transient_periods is not None:
-                kw["transient_periods"] = config.transient_periods
-        names = _names(record)
-        used = basis if config is not None else _active(basis, record, quantity, names)
-        return prepare_frequency_data(record, basis=used, band_hz=band,
-                                      output_quantity=quantity, **names, **kw)
+    def identify(record: Any) -> AutoIdentification:
+        import warnings
 
-    def driving_points(data: Any) -> Any:
-        if config is not None and any(config.driving_points.values()):
-            return config.driving_points
-        if inputs and outputs:
-            dp = driving_point(outputs, inputs)
-            return {inputs[0].name: outputs[dp].name}
-        return data.output_names[0]
+        inp = input_from_record(record, path="<live>")
+        if not use_truth:
+            inp = replace(inp, truth=None)
+        elif inp.truth is None and truth is not None:
+            inp = replace(inp, truth=dict(truth))
+        cfg = config if config is not None else default_config(
+            inp, harmonics=harmonics, driving_point=dp_name)
+        with warnings.catch_warnings():  # steady-state warnings go to the status, not stderr
+            warnings.simplefilter("ignore")
+            ident = identify_input(inp, cfg, orders=sweep)
+        curves: dict = {}
+        if ident.config.nonlinearities:
+            res = ident.auto
+            curves["frequency_hz"] = ident.data.frequencies_hz
+            for which, model in (("full", res.full_model), ("reduced", res.reduced)):
+                if model is not None:
+                    sp = ident.coefficient_spectra_of(model)
+                    curves[which] = {n: sp.values[:, i] for i, n in enumerate(sp.names)}
+        exact = {n: float(v) for nl in ident.config.nonlinearities if nl.truth is not None
+                 for n, v in zip(nl.coefficient_names, nl.truth) if v is not None}
+        return AutoIdentification(identification=ident, coefficient_curves=curves,
+                                  exact_coefficients=exact)
 
-    def coefficient_curves(model: Any, data: Any) -> dict:
-        used = [nl for nl in basis if set(nl.coefficient_names) <= set(data.basis_names)]
-        if not used:
-            return {}
-        spectra = nonlinear_coefficients(model, data, used, driving_point=driving_points(data))
-        return {name: spectra.values[:, i] for i, name in enumerate(spectra.names)}
-
-    exact = {}
-    for nl in basis:
-        if nl.truth is not None:
-            exact.update({n: float(v) for n, v in zip(nl.coefficient_names, nl.truth)
-                          if v is not None})
-    quantity = config.output_quantity if config is not None else None
-    if quantity is None and outputs:
-        quantity = outputs[0].quantity
-    if config is not None and "d_zero" not in options:
-        options["d_zero"] = config.d_zero_for(quantity or "displacement")
-    def spread_for(data: Any) -> Any:
-        from fnsi_lab.ident.coefficients import spread_function
-
-        used = [nl for nl in basis if set(nl.coefficient_names) <= set(data.basis_names)]
-        return spread_function(data, used, driving_point=driving_points(data))
-
-    identify = auto_identifier(prepare=prepare, options=options or None, orders=orders,
-                               coefficients=coefficient_curves if basis else None, exact=exact,
-                               spread=spread_for if basis else None)
-    what = (f"fnsi_lab.ident.auto, orders {orders[0]}-{orders[-1]}, "
-            + (f"{len(basis)} nonlinear element(s): "
-               + ", ".join(f"{nl.name} ({nl.kind})" for nl in basis) if basis else "linear")
-            + (f", config {config.file}" if config is not None and config.file else ""))
+    what = (f"robust pipeline, orders {sweep[0]}-{sweep[-1]}"
+            + (f", config {config.file}" if config is not None and config.file else
+               ", excited band" + (", basis from the recording truth" if use_truth else "")))
     return identify, what
+
+
+def auto_identifier(*, orders: Sequence[int] | str | None = range(2, 41)) -> Identifier:
+    """A linear ``identify(record)`` over the excited band (no config, no basis functions)."""
+    return config_identifier(None, orders=orders, use_truth=False)[0]

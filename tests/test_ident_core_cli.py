@@ -11,7 +11,7 @@ import scipy.io
 from fnsi_lab.cli import main
 from fnsi_lab.ident.config import load_ident_config, packaged_config, parse_ident_config
 from fnsi_lab.ident.errors import IdentConfigError, IdentDataError
-from fnsi_lab.ident.io import load_input
+from fnsi_lab.inputs import load_input
 
 CONFIG = """\
 band_hz: [3, 150]

@@ -81,8 +81,10 @@ def test_cli_bad_auto_section(lumped_npz, tmp_path, capsys):
     assert "auto" in err and "mdi_norm" in err
 
 
-def test_parse_orders():
-    assert auto.parse_orders("2:60") == range(2, 61)
-    assert auto.parse_orders("4:20:2") == range(4, 21, 2)
-    with pytest.raises(IdentError):
-        auto.parse_orders("10:2")
+def test_parse_orders_one_syntax_everywhere():
+    assert auto.parse_orders("2:60") == list(range(2, 61))
+    assert auto.parse_orders("4:20:2") == list(range(4, 21, 2))
+    assert auto.parse_orders("8,4,6") == [4, 6, 8] and auto.parse_orders("10") == [10]
+    for bad in ("10:2", "x", "0:4", "2:4:0", ""):
+        with pytest.raises(IdentError):
+            auto.parse_orders(bad)

@@ -7,7 +7,7 @@ import pytest
 from rerun.chunk import RrdReader
 
 from fnsi_lab.cli import main
-from fnsi_lab.replay.cli import parse_orders
+from fnsi_lab.ident.options import parse_orders
 from fnsi_lab.viewer import paths
 from fnsi_lab.viewer.cli import rrd_entities, rrd_text
 
@@ -95,7 +95,7 @@ def test_bad_options_give_one_line_errors(tmp_path, capsys):
     assert main(["replay", str(tmp_path / "missing.mcap"), "--quiet"]) == 2
     assert "no such recording" in capsys.readouterr().err
     assert parse_orders("2:5") == [2, 3, 4, 5] and parse_orders("4,8") == [4, 8]
-    with pytest.raises(Exception, match="bad order list"):
+    with pytest.raises(Exception, match="orders 'x'"):
         parse_orders("x")
 
 

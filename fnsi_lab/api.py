@@ -1,0 +1,192 @@
+"""The public Python API of fnsi-lab (docs/api.md).
+
+Three calls cover the lab's jobs::
+
+    import fnsi_lab
+    report = fnsi_lab.acquire(out="run.mcap")             # record the simulated SmallSat
+    with fnsi_lab.open_recording("run.mcap") as rec:      # what is in a recording
+        print(rec.channels[0].name, rec.sample_rate_hz)
+    result = fnsi_lab.identify("run.mcap", config="smallsat39")   # robust pipeline
+    print(result.order, result.modes[0]["frequency_hz"], result.coefficients[0]["value"])
+
+:func:`identify` is the one entry point of an identification: the ``fnsi-lab ident``
+command, the live service, batch campaigns and the benchmarks call it (or, for arrays
+already in memory, :func:`fnsi_lab.ident.pipeline.identify_input`, which it wraps).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any, Mapping
+
+__all__ = ["identify", "open_recording", "acquire", "load_config", "Identification"]
+
+
+def load_config(config: Any) -> Any:
+    """An :class:`~fnsi_lab.ident.config.IdentConfig` from what a user may give.
+
+    Parameters
+    ----------
+    config : str, path, mapping or IdentConfig
+        A YAML file, the name of a packaged example (``'smallsat39'``, ``'smallsat3'``,
+        ``'lumped-stop'``, ``'lumped-cubic'``), the YAML content as a mapping, or a parsed
+        config (returned as is).
+
+    Raises
+    ------
+    IdentConfigError
+        Missing file, unknown name or invalid content (one line naming file and field).
+    """
+    from fnsi_lab.ident.config import (IdentConfig, load_ident_config, packaged_config,
+                                       parse_ident_config)
+    from fnsi_lab.ident.errors import IdentError
+
+    if isinstance(config, IdentConfig):
+        return config
+    if isinstance(config, Mapping):
+        return parse_ident_config(dict(config), file="<dict>")
+    path = Path(os.fspath(config))
+    if not path.exists() and path.parent == Path("."):
+        try:
+            path = packaged_config(str(config))
+        except IdentError:
+            pass  # the loader reports the missing file with its name
+    return load_ident_config(path)
+
+
+def _as_input(source: Any, samples_per_period: int | None) -> Any:
+    from fnsi_lab.ident.io import IdentInput, input_from_arrays
+    from fnsi_lab.inputs import load_input
+
+    if isinstance(source, IdentInput):
+        return source
+    if isinstance(source, Mapping):
+        return input_from_arrays(dict(source), "<arrays>", samples_per_period)
+    return load_input(source, samples_per_period=samples_per_period)
+
+
+def identify(source: Any, config: Any = None, *, order: int | None = None,
+             orders: Any = None, reduce_at: int | None = None, max_order: int | None = None,
+             block_rows: int | None = None, progress: Any = False,
+             samples_per_period: int | None = None) -> "Identification":
+    """Identify the underlying linear modes and nonlinear coefficients of a structure.
+
+    Parameters
+    ----------
+    source : str, path, mapping or IdentInput
+        An fnsi-lab recording (``.mcap``), an array file (``.npz``/``.mat``: ``u``, ``y``,
+        ``fs``, optional ``N``, ``channels``, ...; docs/ident.md), the same arrays as a
+        mapping, or an :class:`~fnsi_lab.ident.io.IdentInput`.
+    config : str, path, mapping or IdentConfig, optional
+        See :func:`load_config`. None: the excited band, and for simulated recordings the
+        basis functions of the recording's truth (measured data: a linear model).
+    order : int, optional
+        Fixed model order. None (default): the robust automatic pipeline (information
+        criterion, stabilisation, modal dominancy index, reduction).
+    orders : str or sequence of int, optional
+        Order sweep of the robust pipeline (``'2:60'``, ``'2:60:2'``, ``'4,6,8'``);
+        default the config's ``auto.orders``, else 2..60.
+    reduce_at : int, optional
+        Order at which the MDI and the reduction are applied (default: the selected order).
+    max_order : int, optional
+        Largest order of a fixed-order decomposition (default: the order).
+    block_rows : int, optional
+        Block rows ``i`` of the subspace step (default from the data sizes).
+    progress : bool, optional
+        Progress bar over the order sweep on stderr.
+    samples_per_period : int, optional
+        ``N`` when the file does not say (else the config's).
+
+    Returns
+    -------
+    Identification
+        ``.order``, ``.modes``, ``.coefficients``, ``.model``, ``.to_json()`` (the dict that
+        ``fnsi-lab ident --json`` writes).
+
+    Raises
+    ------
+    FnsiLabError
+        Any problem with the input, the configuration or the identification, as one line.
+
+    Examples
+    --------
+    >>> import numpy as np, fnsi_lab
+    >>> fs, n = 256.0, 256                       # a 1-DOF oscillator, 5 periods
+    >>> t = np.arange(5 * n) / fs
+    >>> u = sum(np.cos(2 * np.pi * k * t + k ** 2) for k in range(2, 40))
+    >>> from scipy import signal
+    >>> sys = signal.cont2discrete(([1.0], [1.0, 2 * 0.02 * 2 * np.pi * 20, (2 * np.pi * 20) ** 2]),
+    ...                            1 / fs, method="zoh")
+    >>> y = signal.lfilter(sys[0][0], sys[1], np.tile(u[:n], 30))[-5 * n:]
+    >>> r = fnsi_lab.identify({"u": u, "y": y, "fs": fs, "N": n},
+    ...                       {"band_hz": [2, 40]}, order=2)
+    >>> round(r.modes[0]["frequency_hz"], 2)
+    20.0
+    """
+    import time
+
+    from fnsi_lab.ident.pipeline import default_config, identify_input
+
+    t0 = time.perf_counter()
+    cfg = load_config(config) if config is not None else None
+    inp = _as_input(source, samples_per_period or (cfg.samples_per_period if cfg else None))
+    if cfg is None:
+        cfg = default_config(inp)
+    load_s = time.perf_counter() - t0
+    result = identify_input(inp, cfg, order=order, orders=orders, reduce_at=reduce_at,
+                            max_order=max_order, block_rows=block_rows, progress=progress)
+    result.session.timings_s["load"] = load_s
+    result.session.timings_s["total"] += load_s
+    return result
+
+
+def open_recording(path: str | os.PathLike[str], **kwargs: Any) -> Any:
+    """Open an fnsi-lab MCAP recording for reading (a context manager).
+
+    See :func:`fnsi_lab.daq.recording.reader.open_recording` for the options
+    (``salvage``, ``validate_crcs``...). The result has ``channels``, ``sample_rate_hz``,
+    ``metadata``, ``excitation``, ``truth``, ``iter_blocks()``, ``read_samples()`` and
+    ``read_periodic()``.
+    """
+    from fnsi_lab.daq.recording.reader import open_recording as _open
+
+    return _open(path, **kwargs)
+
+
+def acquire(config: Any = None, out: str | os.PathLike[str] | None = None, *,
+            realtime: bool = False, force: bool = False) -> Any:
+    """Run an experiment and record everything it acquires to MCAP.
+
+    Parameters
+    ----------
+    config : str, path or ExperimentConfig, optional
+        Experiment YAML (or a packaged name); default the simulated SmallSat test.
+    out : path, optional
+        The recording (default: the experiment's ``output``). An existing file is refused
+        unless ``force``.
+    realtime : bool
+        Pace a simulated source at wall-clock speed, as hardware would deliver.
+    force : bool
+        Replace an existing output file.
+
+    Returns
+    -------
+    AcquisitionReport
+        Blocks, samples, drops and the output path (``report.output``).
+    """
+    from fnsi_lab.daq.acquisition import record_experiment
+    from fnsi_lab.daq.config import ExperimentConfig, load_experiment
+    from fnsi_lab.outputs import check_output_path
+
+    cfg = config if isinstance(config, ExperimentConfig) else load_experiment(config)
+    path = check_output_path(out if out is not None else cfg.output, force=force)
+    return record_experiment(cfg, path, realtime=realtime)
+
+
+def __getattr__(name: str) -> Any:
+    if name == "Identification":
+        from fnsi_lab.ident.pipeline import Identification
+
+        return Identification
+    raise AttributeError(f"module 'fnsi_lab.api' has no attribute {name!r}")

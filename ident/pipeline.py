@@ -1,0 +1,499 @@
+"""One identification from arrays to answer: the entry point every caller shares.
+
+:func:`identify_input` takes periodic arrays (:class:`~fnsi_lab.ident.io.IdentInput`) and a
+configuration (:class:`~fnsi_lab.ident.config.IdentConfig`) and returns an
+:class:`Identification`: the model at a fixed order, or the robust automatic pipeline
+(information criterion, stabilisation, modal dominancy index, reduction) when no order is
+given. The ``fnsi-lab ident`` command, :func:`fnsi_lab.identify`, the live identification
+service, batch campaigns and the benchmarks all call it, so a configuration means the same
+thing everywhere (docs/architecture.md).
+
+Reading files is not done here (``ident`` works on arrays): :mod:`fnsi_lab.inputs` turns a
+recording or an array file into an ``IdentInput``.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import dataclass, field, replace
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from fnsi_lab.ident.basis import Nonlinearity
+from fnsi_lab.ident.coefficients import (CoefficientSpectra, nonlinear_coefficients,
+                                         spread_function, summarize_coefficients)
+from fnsi_lab.ident.config import IdentConfig
+from fnsi_lab.ident.errors import IdentError, IdentWarning
+from fnsi_lab.ident.fnsi import StateSpaceModel, model_at_order, subspace_decomposition
+from fnsi_lab.ident.io import IdentInput, select_channels
+from fnsi_lab.ident.options import parse_orders
+from fnsi_lab.ident.periodic import FrequencyData, prepare_frequency_data
+
+__all__ = ["IdentSession", "Identification", "prepare_session", "identify_input",
+           "default_config", "apply_recording_truth", "DEFAULT_ORDERS"]
+
+#: Order sweep of the robust pipeline when neither the caller nor the config gives one
+#: (the seed's 2..60).
+DEFAULT_ORDERS = range(2, 61)
+
+
+@dataclass
+class IdentSession:
+    """Everything prepared before an order is chosen.
+
+    Attributes
+    ----------
+    config : IdentConfig
+        The configuration actually used (truth values filled in for simulated recordings).
+    input : IdentInput
+        The selected channels.
+    data : FrequencyData
+        Spectra of the processed lines.
+    weighted : bool
+        Noise-weighted SVD and B, D least squares.
+    d_zero : bool
+        ``D = 0`` in the least squares.
+    timings_s : dict
+        Seconds per stage.
+    warnings : list of str
+        Everything a user should read about the data (steady state, truth mismatch...).
+    """
+
+    config: IdentConfig
+    input: IdentInput
+    data: FrequencyData
+    weighted: bool
+    d_zero: bool
+    timings_s: dict = field(default_factory=dict)
+    warnings: list = field(default_factory=list)
+
+
+def apply_recording_truth(cfg: IdentConfig, truth: Mapping | None) -> tuple[IdentConfig, list[str]]:
+    """Fill missing ``truth`` coefficient values from a simulated recording's truth.
+
+    Only the known coefficient values (for ``error_percent``) are taken; basis parameters
+    (clearances, exponents) are never copied. Returns the updated config and warnings for
+    clearances that differ from the truth (the basis would then not match the simulated
+    element).
+    """
+    notes: list[str] = []
+    if not truth or not isinstance(truth.get("nonlinearities"), list):
+        return cfg, notes
+    by_name = {t.get("name"): t for t in truth["nonlinearities"] if isinstance(t, dict)}
+    nls = []
+    for nl in cfg.nonlinearities:
+        t = by_name.get(nl.name)
+        if t is None:
+            nls.append(nl)
+            continue
+        coefs = t.get("coefficients", {})
+        keys = {"trilinear": ["neg", "pos"], "polynomial": ["k"], "quadratic_damping": ["c"],
+                "coulomb": ["f"]}.get(nl.kind, list(coefs))
+        if (nl.truth is None and all(k in coefs for k in keys)
+                and len(keys) == len(nl.coefficient_names)):
+            nl = replace(nl, truth=tuple(float(coefs[k]) for k in keys))
+        given = [float(x) for x in t.get("clearances", [])]
+        mine = {"trilinear": list(nl.clearances), "bilinear": [nl.clearance]}.get(nl.kind)
+        if (mine is not None and given and all(isinstance(m, (int, float)) for m in mine)
+                and not np.allclose(mine, given, rtol=1e-9, atol=0)):
+            notes.append(f"nonlinearity {nl.name!r}: clearances {mine} differ from the "
+                         f"recording's truth {given}")
+        nls.append(nl)
+    return replace(cfg, nonlinearities=tuple(nls)), notes
+
+
+def basis_from_truth(truth: Mapping[str, Any] | None) -> tuple[Nonlinearity, ...]:
+    """Basis functions of a simulated recording's ``truth`` (its nonlinear elements).
+
+    Returns an empty tuple when the truth has none or describes an element this version
+    cannot express (the identification then stays linear).
+    """
+    out = []
+    for el in (truth or {}).get("nonlinearities") or []:
+        try:
+            kind = el["kind"]
+            coeffs = dict(el.get("coefficients") or {})
+            kw: dict[str, Any] = {"name": el["name"], "kind": kind,
+                                  "channels": dict(el.get("channels") or el["dofs"])}
+            if kind == "polynomial":
+                kw.update(exponent=float(el.get("exponent", 3)), signed=bool(el.get("signed")),
+                          argument=el.get("argument", "displacement"))
+                values: tuple = (float(next(iter(coeffs.values()))),) if coeffs else ()
+            elif kind == "trilinear":
+                kw["clearances"] = tuple(float(g) for g in el["clearances"])
+                values = (float(coeffs["neg"]), float(coeffs["pos"]))
+            elif kind == "bilinear":
+                side = "neg" if "neg" in coeffs else "pos"
+                kw.update(side=side, clearance=float(el["clearances"][0]))
+                values = (float(coeffs[side]),)
+            else:
+                values = (float(next(iter(coeffs.values()))),) if coeffs else ()
+            out.append(Nonlinearity(**kw, truth=values or None))
+        except (KeyError, TypeError, ValueError, StopIteration):
+            return ()
+    return tuple(out)
+
+
+def _active_basis(basis: Sequence[Nonlinearity], inp: IdentInput,
+                  quantity: str) -> tuple[Nonlinearity, ...]:
+    """The elements of a truth-derived basis that the recorded motion actually engages.
+
+    A simulated structure may hold stops that the motion never reaches; their basis columns
+    are identically zero and cannot be identified, so they are left out (displacement
+    outputs and displacement-driven elements only; others are kept).
+    """
+    if quantity != "displacement" or not basis:
+        return tuple(basis)
+    from fnsi_lab.ident.basis import evaluate_basis
+
+    q = np.asarray(inp.y)[0, -1]  # last period of the first realization, (N, p)
+    kept = []
+    for nl in basis:
+        if nl.needs_velocity:
+            kept.append(nl)
+            continue
+        try:
+            h = evaluate_basis([nl], q, None, list(inp.output_channels))
+        except (IdentError, KeyError, ValueError):
+            kept.append(nl)  # let the identification report it
+            continue
+        if np.any(h != 0):
+            kept.append(nl)
+    return tuple(kept)
+
+
+def default_config(inp: IdentInput, *, harmonics: float = 1.0,
+                   driving_point: str | None = None) -> IdentConfig:
+    """The configuration used when the caller gives none.
+
+    Band: the excited lines (or the whole spectrum without them); with basis functions
+    from a simulated recording's truth the band reaches ``harmonics`` times the highest
+    excited frequency (capped at 0.45 fs), where the nonlinear distortion lives (the seed
+    excites 5-50 Hz and processes 5-250 Hz: 5). Basis: the truth's elements that the motion
+    engages (none for measured data: a linear identification).
+    """
+    from fnsi_lab.ident.config import InputSpec
+
+    fs, n = inp.sample_rate_hz, inp.samples_per_period
+    df = fs / n
+    quantity = inp.output_quantity or "displacement"
+    basis = _active_basis(basis_from_truth(inp.truth), inp, quantity)
+    lines = np.asarray(inp.excited_lines) if inp.excited_lines is not None else np.zeros(0)
+    if lines.size:
+        hi = float(lines.max()) * df
+        if basis and harmonics > 1:
+            hi = min(harmonics * hi, 0.45 * fs)
+        band = (float(lines.min()) * df, hi)
+    else:
+        band = (df, fs / 2 - df)
+    inputs: tuple = ()
+    if driving_point is not None and inp.input_channels:
+        inputs = (InputSpec(inp.input_channels[0], driving_point),)
+    return IdentConfig(band_hz=band, nonlinearities=basis, inputs=inputs)
+
+
+def prepare_session(inp: IdentInput, cfg: IdentConfig) -> IdentSession:
+    """Select the configured channels and build the frequency data.
+
+    Raises
+    ------
+    IdentError
+        Channels missing, band outside the data, too few periods, ... (one line each).
+    """
+    t0 = time.perf_counter()
+    inp = select_channels(inp, outputs=cfg.outputs, inputs=[i.name for i in cfg.inputs] or None)
+    cfg, truth_notes = apply_recording_truth(cfg, inp.truth)
+    nyquist = inp.sample_rate_hz / 2
+    if cfg.band_hz[0] >= nyquist:
+        raise IdentError(f"band_hz {list(cfg.band_hz)} starts above the Nyquist frequency "
+                         f"{nyquist:g} Hz of the data (fs {inp.sample_rate_hz:g} Hz)")
+    quantity = cfg.output_quantity or inp.output_quantity or "displacement"
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", IdentWarning)
+        data = prepare_frequency_data(
+            u=inp.u, y=inp.y, sample_rate_hz=inp.sample_rate_hz,
+            samples_per_period=inp.samples_per_period, basis=cfg.nonlinearities,
+            band_hz=cfg.band_hz,
+            transient_periods=(cfg.transient_periods if cfg.transient_periods is not None
+                               else inp.transient_periods),
+            output_quantity=quantity, output_names=inp.output_channels,
+            input_names=inp.input_channels, excited_lines=inp.excited_lines,
+            highpass_hz=cfg.highpass_hz, steady_state_tolerance=cfg.steady_state_tolerance,
+            time_base=cfg.time_base, bilinear_period_s=cfg.bilinear_period_s,
+            basis_oversample=cfg.basis_oversample,
+            integration_min_snr=cfg.integration_min_snr or None)
+    weighted = cfg.weighting != "none"
+    if cfg.weighting == "noise" and data.noise_cov is None:
+        raise IdentError("weighting: noise needs at least 2 steady-state periods (use auto or none)")
+    return IdentSession(config=cfg, input=inp, data=data, weighted=weighted,
+                        d_zero=cfg.d_zero_for(quantity),
+                        timings_s={"prepare": time.perf_counter() - t0},
+                        warnings=list(inp.notes) + truth_notes
+                        + [str(w.message) for w in caught])
+
+
+def _driving_points(session: IdentSession) -> Any:
+    """Driving points for the coefficients: the config's, else the only output (None: unknown)."""
+    cfg, data = session.config, session.data
+    if any(cfg.driving_points.values()):
+        return cfg.driving_points
+    return data.output_names[0] if data.n_outputs == 1 else None
+
+
+def _coefficient_spectra(session: IdentSession, model: StateSpaceModel) -> CoefficientSpectra | None:
+    """``c_a(w)`` of ``model`` (None without basis functions).
+
+    Raises NotIdentifiableError (one line) when the driving point is unknown."""
+    basis = session.config.nonlinearities
+    if not basis:
+        return None
+    return nonlinear_coefficients(model, session.data, basis,
+                                  driving_point=_driving_points(session))
+
+
+def _summaries(spectra: CoefficientSpectra | None) -> list[dict]:
+    return [s.to_dict() for s in summarize_coefficients(spectra)] if spectra is not None else []
+
+
+@dataclass(eq=False)
+class Identification:
+    """The answer of one identification, with its evidence.
+
+    Attributes
+    ----------
+    session : IdentSession
+        Configuration, selected input and frequency data.
+    model : StateSpaceModel
+        The answer: the model at the requested order, or the robust pipeline's final model
+        (reduced to the physical modes unless that made the coefficients less consistent).
+    method : {'order', 'auto'}
+        Fixed order or robust automatic pipeline.
+    auto : AutoResult or None
+        Everything the robust pipeline decided (``method == 'auto'``).
+    decomposition : SubspaceDecomposition or None
+        The QR/SVD of a fixed-order identification.
+    coefficient_spectra : CoefficientSpectra or None
+        ``c_a(w)`` of :attr:`model` on every processed line.
+    """
+
+    session: IdentSession
+    model: StateSpaceModel
+    method: str
+    auto: Any = None
+    decomposition: Any = None
+    coefficient_spectra: CoefficientSpectra | None = None
+
+    def coefficient_spectra_of(self, model: StateSpaceModel) -> CoefficientSpectra | None:
+        """``c_a(w)`` of another model of the same data (e.g. ``auto.full_model``)."""
+        return _coefficient_spectra(self.session, model)
+
+    @property
+    def data(self) -> FrequencyData:
+        """The frequency data the model was identified from."""
+        return self.session.data
+
+    @property
+    def config(self) -> IdentConfig:
+        """The configuration actually used."""
+        return self.session.config
+
+    @property
+    def order(self) -> int:
+        """Order of the answer model."""
+        return int(self.model.order)
+
+    @property
+    def coefficients(self) -> list[dict]:
+        """Per coefficient: ``name``, ``value`` (the declared answer), ``mean_real``,
+        ``std_real``, ``ls_value``, ``error_percent`` ... (docs/ident.md)."""
+        return _summaries(self.coefficient_spectra)
+
+    @property
+    def modes(self) -> list[dict]:
+        """Physical modes of the answer, sorted by frequency: ``frequency_hz``,
+        ``damping_ratio``, ``stable``, ``shape`` (complex, one entry per output)."""
+        m = self.model.poles.modes()
+        keep = np.ones(m["frequency_hz"].size, bool)
+        if self.auto is not None:
+            physical = [r["frequency_hz"] for r in self.auto.mdi_table() if r["physical"]]
+            keep = np.array([any(abs(f - g) <= 1e-6 * max(g, 1e-12) for g in physical)
+                             for f in m["frequency_hz"]], bool)
+        return [{"frequency_hz": float(f), "damping_ratio": float(z), "stable": bool(s),
+                 "shape": np.asarray(m["mode_shapes"][:, k])}
+                for k, (f, z, s, kp) in enumerate(zip(m["frequency_hz"], m["damping_ratio"],
+                                                       m["stable"], keep)) if kp]
+
+    def frf(self) -> dict:
+        """Measured, model and underlying linear FRFs at the excited lines.
+
+        Returns
+        -------
+        dict
+            ``frequency_hz`` (F,), ``outputs``, ``inputs`` and complex arrays of shape
+            ``(F, n_outputs, n_inputs)``: ``underlying_linear`` (the linear part of the
+            model), ``model`` (the model's steady-state output over the force, nonlinear
+            terms included) and ``measured`` (output over force); the last two only with one
+            input, where the ratio is defined.
+        """
+        data = self.data
+        exc = np.asarray(data.excited, bool)
+        f = data.frequencies_hz[exc]
+        out: dict[str, Any] = {"frequency_hz": f, "outputs": list(data.output_names),
+                               "inputs": list(data.input_names),
+                               "underlying_linear": self.model.underlying_linear_frf(f)}
+        if data.n_inputs == 1:
+            u = data.E_physical[exc, 0][:, None, None]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                out["measured"] = data.Y[exc][:, :, None] / u
+                out["model"] = self.model.steady_state_output(data)[exc][:, :, None] / u
+        return out
+
+    def to_json(self) -> dict:
+        """The JSON-able result (what ``fnsi-lab ident --json`` writes).
+
+        Top-level ``order``, ``modes``, ``poles`` and ``coefficients`` are the answer; the
+        rest is the evidence (docs/robust.md, docs/ident.md "Result file").
+        """
+        from fnsi_lab.outputs import json_safe
+
+        s, data, model = self.session, self.data, self.model
+        out: dict[str, Any] = {
+            "method": self.method, "input": str(s.input.path), "config": s.config.file,
+            "outputs": list(data.output_names), "inputs": list(data.input_names),
+            "band_hz": list(data.band_hz), "n_lines": data.n_lines,
+            "n_excited_lines": int(np.sum(data.excited)), "n_periods": data.n_periods,
+            "n_realizations": data.n_realizations, "output_quantity": data.output_quantity,
+            "time_base": data.time_base, "weighted": s.weighted, "d_zero": s.d_zero,
+            "steady_state_error": data.steady_state_error,
+        }
+        if self.auto is not None:
+            out.update(self.auto.to_dict())
+        else:
+            out.update(self._fixed_order_dict())
+        out["order"] = self.order
+        out["modes"] = [dict(m, shape={"re": m["shape"].real, "im": m["shape"].imag})
+                        for m in self.modes]
+        out["coefficients"] = self.coefficients
+        out["nonlinearities"] = [_nonlinearity_json(nl) for nl in s.config.nonlinearities]
+        out["coefficient_spectra"] = _spectra_json(self.coefficient_spectra)
+        frf = self.frf()
+        out["frf"] = {k: ({"re": v.real, "im": v.imag} if isinstance(v, np.ndarray)
+                          and np.iscomplexobj(v) else v) for k, v in frf.items()}
+        out["warnings"] = list(s.warnings)
+        out["timings_s"] = {**s.timings_s, **out.get("timings_s", {})}
+        return json_safe(out)
+
+    def _fixed_order_dict(self) -> dict:
+        data, model, dec = self.data, self.model, self.decomposition
+        y_hat = model.steady_state_output(data)
+        rel = float(np.sum(np.abs(data.Y - y_hat) ** 2) / np.sum(np.abs(data.Y) ** 2))
+        p = model.poles.modes()
+        return {
+            "block_rows": dec.block_rows, "stable": model.stable,
+            "n_nyquist_poles": int(model.poles.nyquist.sum()),
+            "n_real_poles": int(model.poles.real.sum()),
+            "relative_model_error": rel,
+            "singular_values": dec.singular_values[:max(2 * model.order, 10)],
+            "poles": [{"frequency_hz": f, "damping_ratio": z, "stable": bool(st)}
+                      for f, z, st in zip(p["frequency_hz"], p["damping_ratio"], p["stable"])],
+        }
+
+
+def _nonlinearity_json(nl: Nonlinearity) -> dict:
+    """The basis element as used: kind, location and its parameters (gaps in the data's units)."""
+    out: dict[str, Any] = {"name": nl.name, "kind": nl.kind, "channels": dict(nl.channels),
+                           "coefficients": list(nl.coefficient_names)}
+    if nl.kind == "trilinear":
+        out["clearances"] = list(nl.clearances)
+    elif nl.kind == "bilinear":
+        out.update(clearances=[nl.clearance], side=nl.side)
+    elif nl.kind == "polynomial":
+        out.update(exponent=nl.exponent, signed=nl.signed, argument=nl.argument)
+    return out
+
+
+def _spectra_json(spectra: CoefficientSpectra | None) -> dict | None:
+    if spectra is None:
+        return None
+    return {"frequency_hz": spectra.frequencies_hz, "excited": spectra.excited,
+            "names": list(spectra.names),
+            "values": {n: {"re": spectra.values[:, i].real, "im": spectra.values[:, i].imag}
+                       for i, n in enumerate(spectra.names)}}
+
+
+def identify_input(inp: IdentInput, cfg: IdentConfig, *, order: int | None = None,
+                   orders: Any = None, reduce_at: int | None = None,
+                   max_order: int | None = None, block_rows: int | None = None,
+                   progress: Any = None) -> Identification:
+    """Identify a nonlinear model from periodic arrays: THE entry point.
+
+    Parameters
+    ----------
+    inp : IdentInput
+        Periodic forces and responses, shapes ``(R, P, N, m)`` and ``(R, P, N, p)``.
+    cfg : IdentConfig
+        Band, channels, basis functions, options (``cfg.auto`` for the robust pipeline).
+    order : int, optional
+        Fixed model order. None (default): the robust pipeline over ``orders`` (the
+        config's ``order`` is the command line's default for ``--order``, not used here).
+    orders : str or sequence of int, optional
+        Sweep of the robust pipeline (``'2:60'``, ``'4,6,8'``...); default the config's
+        ``auto.orders``, else 2..60.
+    reduce_at : int, optional
+        Apply the MDI and reduction at this order (default: the selected order).
+    max_order : int, optional
+        Largest order of a fixed-order decomposition (default: the order).
+    block_rows : int, optional
+        ``i`` (default: the config's, else from the data sizes).
+    progress : bool or fnsi_lab.progress.Progress, optional
+        Progress bar over the orders of the sweep.
+
+    Returns
+    -------
+    Identification
+
+    Raises
+    ------
+    IdentError
+        Bad configuration for these data, or no stable model.
+    """
+    t0 = time.perf_counter()
+    session = prepare_session(inp, cfg)
+    cfg = session.config
+    block_rows = block_rows or cfg.block_rows
+    dp = _driving_points(session)
+    if order is not None:
+        max_order = max(int(order), max_order or cfg.max_order or int(order))
+        t1 = time.perf_counter()
+        dec = subspace_decomposition(session.data, max_order=max_order, block_rows=block_rows,
+                                     weighted=session.weighted)
+        session.timings_s["decomposition"] = time.perf_counter() - t1
+        model = model_at_order(dec, session.data, int(order), d_zero=session.d_zero)
+        session.timings_s["model"] = time.perf_counter() - t1 - session.timings_s["decomposition"]
+        ident = Identification(session, model, "order", decomposition=dec)
+    else:
+        from fnsi_lab.ident.auto import identify_auto
+
+        sweep = parse_orders(orders) if orders is not None else list(cfg.orders or DEFAULT_ORDERS)
+        options = replace(cfg.auto, d_zero=session.d_zero, weighted=session.weighted,
+                          block_rows=block_rows or cfg.auto.block_rows)
+        basis = cfg.nonlinearities
+
+        def coefficients(model: StateSpaceModel) -> list[dict] | None:
+            return _summaries(_coefficient_spectra(session, model)) or None
+
+        spread = (spread_function(session.data, basis, driving_point=dp)
+                  if basis and dp is not None else None)
+        t1 = time.perf_counter()
+        res = identify_auto(session.data, options, orders=sweep, reduce_at=reduce_at,
+                            progress=progress, coefficients=coefficients if basis else None,
+                            spread=spread)
+        session.timings_s["auto"] = time.perf_counter() - t1
+        ident = Identification(session, res.final_model, "auto", auto=res)
+    t2 = time.perf_counter()
+    ident.coefficient_spectra = _coefficient_spectra(session, ident.model)
+    session.timings_s["coefficients"] = time.perf_counter() - t2
+    session.timings_s["total"] = time.perf_counter() - t0
+    return ident
