@@ -28,7 +28,14 @@ Kinds
     friction force in N).
 
 ``offset`` (m) is a known static relative position added to ``delta`` (needed for gaps and
-even polynomials when the outputs are accelerations, whose DC is lost; spec §2.5).
+even polynomials when the outputs are accelerations, whose DC is lost).
+
+Unknown parameters
+------------------
+A clearance or an exponent may be left to the data (``clearances: auto`` in the YAML): the
+element then lists it in ``unknown`` (a :class:`ParameterSpace`: search interval or
+candidates), cannot be evaluated, and :mod:`ident.parameter_search` returns the element
+with the estimate filled in (:meth:`Nonlinearity.with_parameters`).
 """
 
 from __future__ import annotations
@@ -42,6 +49,43 @@ from fnsi_lab.ident.errors import ChannelError, IdentError
 
 Kind = Literal["polynomial", "trilinear", "bilinear", "quadratic_damping", "coulomb"]
 KINDS: tuple[str, ...] = ("polynomial", "trilinear", "bilinear", "quadratic_damping", "coulomb")
+
+#: Parameters that can be estimated, per kind (``g_neg``/``g_pos``: the two clearances).
+ESTIMABLE: dict[str, tuple[str, ...]] = {"trilinear": ("g_neg", "g_pos"),
+                                         "bilinear": ("clearance",),
+                                         "polynomial": ("exponent",)}
+
+
+@dataclass(frozen=True)
+class ParameterSpace:
+    """A basis parameter left to the data.
+
+    Parameters
+    ----------
+    parameter : {'g_neg', 'g_pos', 'clearance', 'exponent'}
+    interval : (float, float), optional
+        Continuous search interval (clearances in the outputs' length unit); None: from the
+        recorded motion (clearances) or the default exponent range.
+    candidates : tuple of float, optional
+        Discrete values to choose from (exponents); exclusive with ``interval``.
+    """
+
+    parameter: str
+    interval: tuple[float, float] | None = None
+    candidates: tuple[float, ...] | None = None
+
+    def __post_init__(self) -> None:
+        if self.interval is not None:
+            lo, hi = (float(v) for v in self.interval)
+            if not 0 <= lo < hi:
+                raise IdentError(f"search interval of {self.parameter} must be [low, high] with "
+                                 f"0 <= low < high, got {list(self.interval)}")
+            object.__setattr__(self, "interval", (lo, hi))
+        if self.candidates is not None:
+            c = tuple(sorted({float(v) for v in self.candidates}))
+            if len(c) < 2:
+                raise IdentError(f"{self.parameter}: give at least two candidates, got {c}")
+            object.__setattr__(self, "candidates", c)
 
 
 @dataclass(frozen=True)
@@ -71,6 +115,8 @@ class Nonlinearity:
         Coulomb regularization velocity (m/s).
     offset : float
         Static relative position added to ``delta`` (m).
+    unknown : tuple of ParameterSpace
+        Parameters to estimate from the data (their fields above hold placeholders).
     """
 
     name: str
@@ -85,6 +131,7 @@ class Nonlinearity:
     velocity_scale: float = 1e-3
     offset: float = 0.0
     truth: tuple[float, ...] | None = field(default=None, compare=False)
+    unknown: tuple[ParameterSpace, ...] = ()
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
@@ -103,6 +150,47 @@ class Nonlinearity:
             raise IdentError(f"nonlinearity {self.name!r}: clearance must be >= 0")
         if self.kind == "coulomb" and not self.velocity_scale > 0:
             raise IdentError(f"nonlinearity {self.name!r}: velocity_scale must be > 0")
+        object.__setattr__(self, "unknown", tuple(self.unknown))
+        allowed = ESTIMABLE.get(self.kind, ())
+        for sp in self.unknown:
+            if sp.parameter not in allowed:
+                raise IdentError(f"nonlinearity {self.name!r}: {sp.parameter!r} cannot be "
+                                 f"estimated for a {self.kind} element (estimable: {list(allowed)})")
+
+    def parameter(self, name: str) -> float:
+        """Current value of an estimable parameter (``g_neg``, ``g_pos``, ``clearance``, ``exponent``)."""
+        if name == "g_neg":
+            return self.clearances[0]
+        if name == "g_pos":
+            return self.clearances[1]
+        if name in ("clearance", "exponent"):
+            return float(getattr(self, name))
+        raise IdentError(f"nonlinearity {self.name!r}: no parameter {name!r}")
+
+    def with_parameters(self, values: Mapping[str, float]) -> "Nonlinearity":
+        """The element with these parameter values; they are no longer unknown.
+
+        Parameters
+        ----------
+        values : mapping str -> float
+            ``{'g_pos': 1.3e-3, ...}``; names from ``ESTIMABLE[kind]``.
+        """
+        from dataclasses import replace
+
+        kw: dict = {}
+        g = list(self.clearances)
+        for name, v in values.items():
+            self.parameter(name)  # validates the name
+            if name == "g_neg":
+                g[0] = float(v)
+            elif name == "g_pos":
+                g[1] = float(v)
+            else:
+                kw[name] = float(v)
+        if self.kind == "trilinear":
+            kw["clearances"] = tuple(g)
+        left = tuple(sp for sp in self.unknown if sp.parameter not in values)
+        return replace(self, unknown=left, **kw)
 
     @property
     def coefficient_names(self) -> tuple[str, ...]:
@@ -147,7 +235,16 @@ class Nonlinearity:
         Returns
         -------
         h : ndarray, shape (n_samples, n_columns)
+
+        Raises
+        ------
+        IdentError
+            A parameter of the element is still unknown.
         """
+        if self.unknown:
+            raise IdentError(f"nonlinearity {self.name!r}: "
+                             f"{[sp.parameter for sp in self.unknown]} not estimated yet "
+                             "(ident.parameter_search resolves 'auto' parameters)")
         d = np.asarray(delta, float) + self.offset
         if self.needs_velocity:
             if delta_dot is None:

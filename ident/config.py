@@ -14,7 +14,8 @@ field and the fix; unknown keys are rejected (typos). Example (3-DOF chain, rela
       - name: stop
         kind: trilinear
         channels: {X2: 1, X3: -1}
-        clearances: [4.0e-4, 5.0e-4]   # (g_neg, g_pos), m
+        clearances: [4.0e-4, 5.0e-4]   # (g_neg, g_pos), m; or auto, or per side a
+                                       # search interval: [[3.0e-4, 6.0e-4], auto]
         truth: [2.0e4, 1.5e4]          # optional, for error_percent
     order: 6
     max_order: 20                # largest order of the decomposition (default: order)
@@ -42,7 +43,7 @@ from typing import Any
 
 from fnsi_lab.errors import ConfigError
 from fnsi_lab.validate import Section, load_yaml
-from fnsi_lab.ident.basis import KINDS, Nonlinearity
+from fnsi_lab.ident.basis import KINDS, Nonlinearity, ParameterSpace
 from fnsi_lab.ident.errors import IdentConfigError, IdentError
 from fnsi_lab.ident.options import AutoOptions, parse_orders
 from fnsi_lab.ident.periodic import OUTPUT_QUANTITIES
@@ -130,6 +131,27 @@ def _coerce(d: Any) -> Any:
     return out
 
 
+def _is_number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _clearance_spec(sec: Section, key: str, v: Any, parameter: str) -> tuple[float, ParameterSpace | None]:
+    """One clearance: a distance, ``auto`` (search over the recorded motion) or ``[low, high]``.
+
+    Returns the value (0 as a placeholder when unknown) and the search space (None if known).
+    """
+    if v == "auto":
+        return 0.0, ParameterSpace(parameter)
+    if isinstance(v, list) and len(v) == 2 and all(_is_number(x) for x in v):
+        if not 0 <= v[0] < v[1]:
+            raise sec.error(key, f"search interval {v} must be [low, high] with 0 <= low < high")
+        return 0.0, ParameterSpace(parameter, interval=(float(v[0]), float(v[1])))
+    if _is_number(v) and v >= 0:
+        return float(v), None
+    raise sec.error(key, f"expected a non-negative distance, auto or a search interval "
+                    f"[low, high], got {v!r}", fix="e.g. 1.3, auto or [1.0, 2.0]")
+
+
 def _nonlinearity(sec: Section, index: int) -> Nonlinearity:
     name = sec.string("name")
     kind = sec.string("kind", choices=KINDS)
@@ -141,23 +163,50 @@ def _nonlinearity(sec: Section, index: int) -> Nonlinearity:
         if isinstance(w, bool) or not isinstance(w, (int, float)) or w == 0:
             raise sec.error("channels", f"weight of {ch!r} must be a non-zero number, got {w!r}")
     kw: dict[str, Any] = {"name": name, "kind": kind, "channels": {str(k): float(v) for k, v in chs.items()}}
+    unknown: list[ParameterSpace] = []
     if kind == "polynomial":
-        kw["exponent"] = sec.number("exponent", 3.0, positive=True)
         kw["signed"] = sec.boolean("signed", False)
         kw["argument"] = sec.string("argument", "displacement", choices=("displacement", "velocity"))
-        if not kw["signed"] and not float(kw["exponent"]).is_integer():
-            raise sec.error("exponent", f"exponent {kw['exponent']:g} is not whole",
-                            fix="use signed: true for |x|**(p-1) x with a real exponent")
+        raw = sec.raw("exponent", 3.0)
+        if raw == "auto" or isinstance(raw, list):
+            cands = raw if isinstance(raw, list) else None
+            if cands is not None and (len(cands) < 2 or not all(_is_number(v) and v > 0 for v in cands)):
+                raise sec.error("exponent", f"expected a list of >= 2 positive exponents to "
+                                f"choose from, got {raw!r}", fix="e.g. exponent: [2, 3, 5] or auto")
+            if cands is not None and not kw["signed"] and not all(float(v).is_integer() for v in cands):
+                raise sec.error("exponent", f"candidates {raw} are not all whole",
+                                fix="use signed: true for |x|**(p-1) x with real exponents")
+            unknown.append(ParameterSpace("exponent", candidates=None if cands is None
+                                          else tuple(float(v) for v in cands)))
+        else:
+            kw["exponent"] = sec.number("exponent", 3.0, positive=True)
+            if not kw["signed"] and not float(kw["exponent"]).is_integer():
+                raise sec.error("exponent", f"exponent {kw['exponent']:g} is not whole",
+                                fix="use signed: true for |x|**(p-1) x with a real exponent")
     elif kind == "trilinear":
-        kw["clearances"] = sec.numbers("clearances", length=2)
-        if min(kw["clearances"]) < 0:
-            raise sec.error("clearances", "clearances are positive distances (g_neg, g_pos)")
+        raw = sec.raw("clearances")
+        sides = [raw, raw] if raw == "auto" else raw
+        if not isinstance(sides, list) or len(sides) != 2:
+            raise sec.error("clearances", f"expected 2 numbers [g_neg, g_pos] (each a distance, auto or "
+                            f"[low, high]) or auto, got {raw!r}",
+                            fix="e.g. clearances: [1.5, 1.3], auto, or [[1.0, 2.0], auto]")
+        g = []
+        for par, v in zip(("g_neg", "g_pos"), sides):
+            value, space = _clearance_spec(sec, "clearances", v, par)
+            g.append(value)
+            if space is not None:
+                unknown.append(space)
+        kw["clearances"] = tuple(g)
     elif kind == "bilinear":
-        kw["clearance"] = sec.number("clearance", nonnegative=True)
+        value, space = _clearance_spec(sec, "clearance", sec.raw("clearance"), "clearance")
+        kw["clearance"] = value
+        if space is not None:
+            unknown.append(space)
         kw["side"] = sec.string("side", "pos", choices=("pos", "neg"))
     elif kind == "coulomb":
         kw["velocity_scale"] = sec.number("velocity_scale", 1e-3, positive=True)
     kw["offset"] = sec.number("offset", 0.0)
+    kw["unknown"] = tuple(unknown)
     n_coef = 2 if kind == "trilinear" else 1
     if sec.has("truth"):
         t = sec.raw("truth")

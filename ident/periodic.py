@@ -24,6 +24,32 @@ OUTPUT_QUANTITIES: tuple[str, ...] = ("displacement", "velocity", "acceleration"
 
 
 @dataclass(frozen=True, eq=False)
+class BasisMotion:
+    """The averaged motion the basis functions read, one period per realization.
+
+    Attributes
+    ----------
+    displacement : ndarray, shape (R, N_fine, c)
+        ``q`` of the channels read by the basis (output units integrated to displacement),
+        on the band-limited interpolation with ``basis_oversample`` points per sample.
+    velocity : ndarray, shape (R, N_fine, c) or None
+        ``q'``, when a velocity-dependent element reads these channels.
+    channels : tuple of str
+        The ``c`` channel names.
+    lines : int ndarray, shape (F0,)
+        DFT bins of the processed band (per realization).
+    force_rms : float
+        RMS of the averaged forces (N): basis columns are scaled to it.
+    """
+
+    displacement: np.ndarray
+    velocity: np.ndarray | None
+    channels: tuple[str, ...]
+    lines: np.ndarray
+    force_rms: float
+
+
+@dataclass(frozen=True, eq=False)
 class FrequencyData:
     """Frequency-domain data of one identification problem (spec §1.2).
 
@@ -72,6 +98,9 @@ class FrequencyData:
         (spec §1.6; ``G_c(j w_k) = G_d(z_k)`` exactly, no sampling assumption).
     bilinear_period_s : float or None
         ``T`` of the bilinear map (s).
+    motion : BasisMotion or None
+        The averaged motion the basis functions are evaluated on (kept so that
+        :func:`with_basis` can rebuild ``E`` for other basis parameters without the time data).
     """
 
     lines: np.ndarray
@@ -95,6 +124,7 @@ class FrequencyData:
     steady_state_error: float = 0.0
     time_base: str = "band-limited"
     bilinear_period_s: float | None = None
+    motion: "BasisMotion | None" = None
 
     @property
     def n_lines(self) -> int:
@@ -296,7 +326,8 @@ def prepare_frequency_data(record: Any = None, *, u: Any = None, y: Any = None,
                            time_base: Literal["auto", "band-limited", "zoh", "bilinear"] = "auto",
                            bilinear_period_s: float | None = None,
                            basis_oversample: int = 8,
-                           integration_min_snr: float | None = 4.0) -> FrequencyData:
+                           integration_min_snr: float | None = 4.0,
+                           motion_for: Sequence[Nonlinearity] = ()) -> FrequencyData:
     """Build :class:`FrequencyData` from a periodic record or from arrays (spec §1.2).
 
     Parameters
@@ -446,51 +477,41 @@ def prepare_frequency_data(record: Any = None, *, u: Any = None, y: Any = None,
 
     u_avg = U4.mean(axis=1)  # (R, N, m)
     y_avg = Y4.mean(axis=1)  # (R, N, p)
-    # basis functions on the averaged response (spec §1.2 step 3; §2.5)
-    basis = tuple(basis)
-    s_names = coefficient_names(basis)
-    hp = 0.0 if highpass_hz is None else float(highpass_hz)
-    h_list = []
-    for r in range(R):
-        if not basis:
-            h_list.append(np.zeros((N, 0)))
-            continue
-        need_v = any(nl.needs_velocity for nl in basis)
-        # accelerations: lines buried in noise would dominate after double integration
-        g = (noise_gain(Y4[r], integration_min_snr)
-             if output_quantity == "acceleration" and P >= 2 and integration_min_snr else None)
-        if output_quantity == "displacement":
-            q = y_avg[r]
-            qd = integrate_periodic(q, fs, -1) if need_v else None
-        elif output_quantity == "velocity":
-            q = integrate_periodic(y_avg[r], fs, 1, hp, gain=g)
-            qd = y_avg[r] - y_avg[r].mean(axis=0) if need_v else None
-        else:
-            q = integrate_periodic(y_avg[r], fs, 2, hp, gain=g)
-            qd = integrate_periodic(y_avg[r], fs, 1, hp, gain=g) if need_v else None
-        names = output_names
-        if basis_oversample > 1:  # only the channels the basis functions read
-            used = sorted({output_names.index(c) for nl in basis for c in nl.channels
-                           if c in output_names})
-            names = tuple(output_names[i] for i in used)
-            q = interpolate_periodic(q[:, used], basis_oversample)
-            qd = None if qd is None else interpolate_periodic(qd[:, used], basis_oversample)
-        h_list.append(evaluate_basis(basis, q, qd, names))
-    h_avg = np.stack(h_list)  # (R, N * basis_oversample, s)
     rms_p = float(np.sqrt(np.mean(u_avg ** 2)))
     if not rms_p > 0:
         raise IdentError("the force signals are zero")
-    rms_h = np.sqrt(np.mean(h_avg ** 2, axis=(0, 1))) if basis else np.zeros(0)
-    if np.any(rms_h == 0):
-        dead = [n for n, v in zip(s_names, rms_h) if v == 0]
-        raise IdentError(f"basis functions {dead} are identically zero on these data "
-                         "(clearance larger than the motion, or wrong channels)")
-    sigma = np.concatenate([np.ones(m), rms_p / rms_h])
-    Uf_all = np.fft.rfft(u_avg, axis=1)[:, K] / N
-    Hf = np.fft.rfft(h_avg * sigma[m:], axis=1)[:, K] / h_avg.shape[1]
-    Ef = np.concatenate([Uf_all, Hf], axis=2)  # (R, F0, m_e)
+    # the motion the basis functions read (spec §1.2 step 3; §2.5), kept for with_basis
+    basis = tuple(basis)
+    readers = basis + tuple(motion_for)
+    motion = None
+    if readers:
+        used = sorted({output_names.index(c) for nl in readers for c in nl.channels
+                       if c in output_names})
+        need_v = any(nl.needs_velocity for nl in readers)
+        hp = 0.0 if highpass_hz is None else float(highpass_hz)
+        q_list, qd_list = [], []
+        for r in range(R):
+            # accelerations: lines buried in noise would dominate after double integration
+            g = (noise_gain(Y4[r], integration_min_snr)
+                 if output_quantity == "acceleration" and P >= 2 and integration_min_snr else None)
+            if output_quantity == "displacement":
+                q = y_avg[r]
+                qd = integrate_periodic(q, fs, -1) if need_v else None
+            elif output_quantity == "velocity":
+                q = integrate_periodic(y_avg[r], fs, 1, hp, gain=g)
+                qd = y_avg[r] - y_avg[r].mean(axis=0) if need_v else None
+            else:
+                q = integrate_periodic(y_avg[r], fs, 2, hp, gain=g)
+                qd = integrate_periodic(y_avg[r], fs, 1, hp, gain=g) if need_v else None
+            # only the channels the basis functions read, on the band-limited interpolation
+            q_list.append(interpolate_periodic(q[:, used], basis_oversample))
+            qd_list.append(None if qd is None else interpolate_periodic(qd[:, used], basis_oversample))
+        motion = BasisMotion(displacement=np.stack(q_list),
+                             velocity=None if not need_v else np.stack(qd_list),
+                             channels=tuple(output_names[i] for i in used), lines=K,
+                             force_rms=rms_p)
+    Uf = np.fft.rfft(u_avg, axis=1)[:, K] / N  # (R, F0, m)
     Yf = np.fft.rfft(y_avg, axis=1)[:, K] / N  # (R, F0, p)
-    Uf = Ef[:, :, :m]
     noise = None
     if P >= 2:
         Yq = np.fft.rfft(Y4, axis=2)[:, :, K] / N  # (R, P, F0, p)
@@ -517,11 +538,84 @@ def prepare_frequency_data(record: Any = None, *, u: Any = None, y: Any = None,
     else:
         raise IdentError(f"time_base {time_base!r} is not one of "
                          "['band-limited', 'zoh', 'bilinear']")
-    return FrequencyData(
+    data = FrequencyData(
         time_base=time_base, bilinear_period_s=T_bl,
         lines=lines, frequencies_hz=lines * fs / N, z=z,
-        Y=Yf.reshape(-1, p), E=Ef.reshape(-1, m + len(s_names)), input_scale=sigma,
+        Y=Yf.reshape(-1, p), E=Uf.reshape(-1, m), input_scale=np.ones(m),
         noise_cov=noise, n_inputs=m, sample_rate_hz=fs, samples_per_period=N,
         output_names=output_names, input_names=input_names, excited=excited,
-        basis_names=s_names, output_quantity=output_quantity, n_periods=P, n_realizations=R,
-        band_hz=(f_min, f_max), steady_state_error=ss_err)
+        output_quantity=output_quantity, n_periods=P, n_realizations=R,
+        band_hz=(f_min, f_max), steady_state_error=ss_err, motion=motion)
+    return with_basis(data, basis) if basis else data
+
+
+def basis_spectra(basis: Sequence[Nonlinearity], motion: BasisMotion) -> tuple[np.ndarray, np.ndarray]:
+    """Fourier coefficients of the basis functions on the processed lines.
+
+    Parameters
+    ----------
+    basis : sequence of Nonlinearity
+        Elements with every parameter known; their channels must be in ``motion.channels``.
+    motion : BasisMotion
+
+    Returns
+    -------
+    H : complex ndarray, shape (R * F0, s)
+        Unscaled spectra (numpy DFT over the fine period divided by its length), the lines of
+        each realization in turn.
+    rms : ndarray, shape (s,)
+        RMS of each basis function over the fine periods of every realization.
+    """
+    q, qd = motion.displacement, motion.velocity
+    h = np.stack([evaluate_basis(basis, q[r], None if qd is None else qd[r], motion.channels)
+                  for r in range(q.shape[0])])                   # (R, N_fine, s)
+    rms = np.sqrt(np.mean(h ** 2, axis=(0, 1)))
+    H = np.fft.rfft(h, axis=1)[:, motion.lines] / h.shape[1]
+    return H.reshape(-1, h.shape[2]), rms
+
+
+def with_basis(data: FrequencyData, basis: Sequence[Nonlinearity]) -> FrequencyData:
+    """The same data with the extended input built for ``basis`` (forces kept).
+
+    Parameters
+    ----------
+    data : FrequencyData
+        Prepared by :func:`prepare_frequency_data` with a ``motion`` holding the channels of
+        ``basis`` (``basis=`` or ``motion_for=`` there).
+    basis : sequence of Nonlinearity
+
+    Returns
+    -------
+    FrequencyData
+        ``E = [P; sigma_1 H_1; ...]`` with ``sigma_a = rms(p) / rms(h_a)``.
+
+    Raises
+    ------
+    IdentError
+        No motion kept, a channel of ``basis`` not measured, or a basis function identically
+        zero on these data.
+    """
+    from dataclasses import replace
+
+    basis = tuple(basis)
+    m = data.n_inputs
+    if not basis:
+        return replace(data, E=data.E[:, :m], input_scale=data.input_scale[:m], basis_names=())
+    for nl in basis:
+        nl.location_vector(data.output_names)        # ChannelError naming the outputs
+    motion = data.motion
+    if motion is None or not all(c in motion.channels for nl in basis for c in nl.channels):
+        raise IdentError("these frequency data do not hold the motion of the basis channels "
+                         "(prepare them with basis= or motion_for=)")
+    if motion.velocity is None and any(nl.needs_velocity for nl in basis):
+        raise IdentError("these frequency data hold no velocities for the velocity-dependent "
+                         "basis functions (prepare them with basis= or motion_for=)")
+    H, rms_h = basis_spectra(basis, motion)
+    names = coefficient_names(basis)
+    if np.any(rms_h == 0):
+        dead = [n for n, v in zip(names, rms_h) if v == 0]
+        raise IdentError(f"basis functions {dead} are identically zero on these data "
+                         "(clearance larger than the motion, or wrong channels)")
+    sigma = np.concatenate([np.ones(m), motion.force_rms / rms_h])
+    E = np.concatenate([data.E[:, :m], H * sigma[m:]], axis=1)
+    return replace(data, E=E, input_scale=sigma, basis_names=names)
