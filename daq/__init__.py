@@ -14,15 +14,23 @@ bounded queues to the MCAP recorder (:mod:`daq.recording`) and to any analysis t
 Importing this package never imports an optional driver (see :mod:`daq.registry`).
 """
 
-from fnsi_lab.daq.block import Block
-from fnsi_lab.daq.channels import ChannelInfo
-from fnsi_lab.daq.config import ExcitationConfig, ExperimentConfig, SourceConfig, load_experiment
-from fnsi_lab.daq.multisine import Multisine, multisine
-from fnsi_lab.daq.registry import make_source, source_class
-from fnsi_lab.daq.source import Source, SourceEvent, SourceStats
+from typing import Any
 
-__all__ = [
-    "Block", "ChannelInfo", "ExcitationConfig", "ExperimentConfig", "SourceConfig",
-    "load_experiment", "Multisine", "multisine", "make_source", "source_class", "Source",
-    "SourceEvent", "SourceStats",
-]
+#: Public name -> module defining it (imported on first use: ``import fnsi_lab.daq`` and
+#: ``fnsi-lab --help`` do not load numpy).
+_LAZY = {
+    "Block": "block", "ChannelInfo": "channels", "ExcitationConfig": "config",
+    "ExperimentConfig": "config", "SourceConfig": "config", "load_experiment": "config",
+    "Multisine": "multisine", "multisine": "multisine", "make_source": "registry",
+    "source_class": "registry", "Source": "source", "SourceEvent": "source",
+    "SourceStats": "source",
+}
+
+__all__ = list(_LAZY)
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        import importlib
+        return getattr(importlib.import_module(f"fnsi_lab.daq.{_LAZY[name]}"), name)
+    raise AttributeError(f"module 'fnsi_lab.daq' has no attribute {name!r}")

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from typing import Any
 
@@ -14,10 +13,13 @@ def _acquire(args: argparse.Namespace) -> int:
     from fnsi_lab.daq.acquisition import record_experiment
     from fnsi_lab.daq.config import load_experiment
 
+    from fnsi_lab.outputs import check_output_path
+
     config = load_experiment(args.config)
     if config.excitation is not None and config.excitation.levels:
         return _acquire_levels(args, config)
-    output = args.out or config.output
+    output = str(check_output_path(config.output if args.out is None else args.out,
+                                   force=args.force))
     total = None
     if config.excitation is not None and config.source.kind in ("simulated", "smallsat"):
         ex = config.excitation
@@ -34,6 +36,9 @@ def _acquire(args: argparse.Namespace) -> int:
     report = record_experiment(config, output, realtime=args.realtime,
                                on_block=on_block, stop=None)
     print(report.summary())
+    if report.interrupted:
+        print("fnsi-lab acquire: interrupted", file=sys.stderr)
+        return 130
     if not args.no_info:
         from fnsi_lab.daq.recording.info import format_info, recording_info
         print(format_info(recording_info(output)))
@@ -73,27 +78,24 @@ def _info(args: argparse.Namespace) -> int:
 
     info = recording_info(args.file)
     if args.json:
-        print(json.dumps(info, indent=2, default=_json_default))
+        from fnsi_lab.outputs import dumps
+        print(dumps(info, indent=2))
     else:
         print(format_info(info))
     return 0
 
 
-def _json_default(obj: Any) -> Any:
-    import numpy as np
-
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    return str(obj)
-
-
 def _recover(args: argparse.Namespace) -> int:
     from fnsi_lab.daq.recording.recover import recover
+    from fnsi_lab.outputs import check_output_path
 
+    check_output_path(args.out, force=args.force, option="OUT")
     report = recover(args.broken, args.out)
     print(report.summary())
+    if not report.sample_messages:
+        print(f"fnsi-lab recover: error: {args.broken}: no intact sample block to recover; "
+              f"{args.out} was not written", file=sys.stderr)
+        return 1
     return 0
 
 
@@ -121,7 +123,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--no-info", action="store_true", help="do not print the recording summary afterwards")
     p.add_argument("--force", action="store_true",
-                   help="replace existing recordings of a level sweep (excitation.levels)")
+                   help="replace an existing output file (or the recordings of a level sweep)")
     p.set_defaults(handler=_acquire)
 
     p = sub.add_parser(
@@ -136,11 +138,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(handler=_info)
 
     p = sub.add_parser(
-        "recover", formatter_class=fmt, help="rebuild a clean, indexed file from an unfinished recording",
-        description="Salvage a recording whose writer was killed (no summary, no footer): every "
-                    "complete chunk is copied, with its schemas, channels, metadata and "
-                    "attachments, into a new indexed MCAP file.",
-        epilog="example:\n  fnsi-lab recover crashed.mcap crashed-recovered.mcap\n")
+        "recover", formatter_class=fmt,
+        help="rebuild a clean, indexed file from an unfinished or damaged recording",
+        description="Salvage a recording whose writer was killed (no summary, no footer) or "
+                    "whose bytes were damaged: every chunk that passes its CRC is copied, with "
+                    "its schemas, channels, metadata and attachments, into a new indexed MCAP "
+                    "file. A damaged chunk is skipped and reading resumes at the next intact "
+                    "one; the report gives the damaged byte ranges and the seconds of signal "
+                    "missing. Exit 1 when no sample block could be recovered (nothing is "
+                    "written then).",
+        epilog="examples:\n  fnsi-lab recover crashed.mcap crashed.recovered.mcap\n"
+               "  fnsi-lab recover damaged.mcap fixed.mcap --force   # replace fixed.mcap\n")
     p.add_argument("broken", metavar="BROKEN.mcap")
     p.add_argument("out", metavar="OUT.mcap")
+    p.add_argument("--force", action="store_true", help="replace OUT.mcap if it exists")
     p.set_defaults(handler=_recover)

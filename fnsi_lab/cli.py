@@ -35,7 +35,8 @@ COMMAND_INDEX = {
     "acquire": "fnsi_lab.daq.cli", "info": "fnsi_lab.daq.cli", "recover": "fnsi_lab.daq.cli",
     "excitation": "fnsi_lab.daq.drive_cli", "ident": "fnsi_lab.ident.cli",
     "run": "fnsi_lab.replay.cli", "live": "fnsi_lab.replay.cli", "replay": "fnsi_lab.replay.cli",
-    "view": "fnsi_lab.viewer.cli",
+    "view": "fnsi_lab.viewer.cli", "import": "fnsi_lab.daq.formats.cli",
+    "batch": "fnsi_lab.campaign.cli", "campaign": "fnsi_lab.campaign.cli",
 }
 
 #: Commands that read recordings: they get ``--no-crc-check``.

@@ -11,7 +11,19 @@ from __future__ import annotations
 
 
 class FnsiLabError(Exception):
-    """Base class of every error fnsi-lab raises on purpose."""
+    """Base class of every error fnsi-lab raises on purpose.
+
+    ``exit_code`` is the status the command line exits with: 2 (usage or input error) by
+    default, 1 for :class:`WorkFailedError` (docs/cli.md).
+    """
+
+    exit_code = 2
+
+
+class WorkFailedError(FnsiLabError, RuntimeError):
+    """The input was fine but the work failed (identification, disk full...): exit 1."""
+
+    exit_code = 1
 
 
 class ConfigError(FnsiLabError, ValueError):

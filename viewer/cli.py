@@ -16,11 +16,12 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
-
-import rerun as rr
+from typing import TYPE_CHECKING, Any
 
 from fnsi_lab.errors import DataFileError, FnsiLabError
+
+if TYPE_CHECKING:  # pragma: no cover
+    import rerun as rr  # imported where used: `fnsi-lab --help` must not load it
 
 #: Default URL of a running viewer's gRPC proxy.
 DEFAULT_CONNECT_URL = "rerun+http://127.0.0.1:9876/proxy"
@@ -92,6 +93,8 @@ def open_stream(args: argparse.Namespace, blueprint: Any, *, recording_id: str |
     -------
     (RecordingStream, ViewerSinks)
     """
+    import rerun as rr
+
     rec = rr.RecordingStream(APP_ID, recording_id=recording_id)
     sinks = ViewerSinks()
     rrd = getattr(args, "rrd", None)
@@ -208,6 +211,7 @@ def _cmd_view(args: argparse.Namespace) -> int:
         subprocess.Popen([exe, str(args.file)], start_new_session=True)
         return 0
     if args.connect or args.serve_web:
+        import rerun as rr
         from rerun.chunk import RrdReader
 
         from fnsi_lab.viewer.blueprint import blueprint
