@@ -66,6 +66,8 @@ META_CHANNELS = "channels"
 META_EXCITATION = "excitation"
 META_TRUTH = "truth"
 META_SOURCE = "source"
+#: Wall-clock origin of the message log times (``acquisition_start_utc_ns``).
+META_CLOCK = "clock"
 #: Key of the software version inside the ``experiment`` record (always written).
 SOFTWARE_VERSION_KEY = "software_version"
 

@@ -106,8 +106,10 @@ class Recorder:
 
     Notes
     -----
-    Log and publish times of sample messages are ``block.t0_ns`` (integer ns, source
-    clock); events use their own ``time_ns``. Data are stored as float32: float32 blocks
+    Log and publish times of sample messages are wall-clock UTC nanoseconds: the
+    acquisition start (``start_utc_ns``) plus the block's sample time since the first block
+    (``block.t0_ns - first.t0_ns``); the sample clock ``t0_ns`` itself stays in the payload.
+    Events use their own ``time_ns`` (wall clock). Data are stored as float32: float32 blocks
     round-trip bit for bit, float64 blocks are rounded once.
 
     Examples
@@ -121,7 +123,8 @@ class Recorder:
                  sample_rate_hz: float, *, metadata: Mapping[str, Any] | None = None,
                  attachments: Iterable[Attachment] = (), flush_interval_s: float = 1.0,
                  chunk_size: int = 1 << 20,
-                 compression: Literal["zstd", "lz4", "none"] = "zstd") -> None:
+                 compression: Literal["zstd", "lz4", "none"] = "zstd",
+                 start_utc_ns: int | None = None) -> None:
         channels = tuple(channels)
         if not channels:
             raise ValueError("a recording needs at least one channel")
@@ -147,6 +150,9 @@ class Recorder:
         self.events_written = 0
         #: Blocks handed to the OS by the last flush (what survives a crash of this process).
         self.blocks_flushed = 0
+        #: Wall-clock UTC ns of the acquisition start: log time of the first sample block.
+        self.start_utc_ns = int(time.time_ns() if start_utc_ns is None else start_utc_ns)
+        self._log_time_offset_ns: int | None = None  # log time - t0_ns, set by the 1st block
         try:
             self._stream = open(self.path, "wb")
         except OSError as exc:
@@ -178,8 +184,12 @@ class Recorder:
         experiment = dict(metadata.pop(topics.META_EXPERIMENT, None) or {})
         experiment.setdefault(topics.SOFTWARE_VERSION_KEY, software_version())
         metadata.pop(topics.META_CHANNELS, None)  # always the table actually recorded
+        clock = {"acquisition_start_utc_ns": self.start_utc_ns,
+                 "log_time": "wall-clock UTC ns = acquisition_start_utc_ns + (t0_ns - t0_ns of "
+                             "the first sample block); t0_ns (sample clock) is in the payload"}
         records = {topics.META_EXPERIMENT: experiment,
-                   topics.META_CHANNELS: [c.to_dict() for c in self.channels], **metadata}
+                   topics.META_CHANNELS: [c.to_dict() for c in self.channels],
+                   topics.META_CLOCK: clock, **metadata}
         for key, value in records.items():
             self._add_metadata_record(key, value)
 
@@ -249,7 +259,8 @@ class Recorder:
         ----------
         block : Block
             ``block.data`` shape (n_samples, n_channels) with the recorder's channels;
-            ``block.t0_ns`` becomes the message log time and must be >= 0.
+            ``block.t0_ns`` (>= 0) is stored in the payload; the message log time is
+            ``start_utc_ns`` plus ``t0_ns`` since the first block.
 
         Raises
         ------
@@ -270,11 +281,14 @@ class Recorder:
                                       realization=block.realization,
                                       sample_rate_hz=block.sample_rate_hz, t0_ns=block.t0_ns,
                                       sequence=block.sequence)
+        if self._log_time_offset_ns is None:
+            self._log_time_offset_ns = self.start_utc_ns - int(block.t0_ns)
+        log_time = max(int(block.t0_ns) + self._log_time_offset_ns, 0)
         self._begin()
         try:
             # MCAP's message sequence is uint32; the full counter is in the payload.
-            self._writer.add_message(self._samples_channel, log_time=int(block.t0_ns),
-                                     data=payload, publish_time=int(block.t0_ns),
+            self._writer.add_message(self._samples_channel, log_time=log_time,
+                                     data=payload, publish_time=log_time,
                                      sequence=int(block.sequence) & 0xFFFFFFFF)
             self.blocks_written += 1
             self.samples_written += int(data.shape[0])
