@@ -43,10 +43,11 @@ sys.path.insert(0, str(ROOT))
 from fnsi_lab.daq.multisine import multisine  # noqa: E402
 from fnsi_lab.daq.sim.model import StructuralModel  # noqa: E402
 from fnsi_lab.daq.sim.nonlinear import NonlinearElement  # noqa: E402
-from fnsi_lab.ident import auto  # noqa: E402
 from fnsi_lab.ident.basis import Nonlinearity  # noqa: E402
-from fnsi_lab.ident.coefficients import nonlinear_coefficients, spread_function, summarize_coefficients  # noqa: E402
-from fnsi_lab.ident.periodic import prepare_frequency_data  # noqa: E402
+from fnsi_lab.ident.config import IdentConfig, InputSpec  # noqa: E402
+from fnsi_lab.ident.io import input_from_arrays  # noqa: E402
+from fnsi_lab.ident.options import AutoOptions  # noqa: E402
+from fnsi_lab.ident.pipeline import identify_input  # noqa: E402
 
 
 # ------------------------------------------------------------------------------ structures
@@ -273,20 +274,16 @@ def evaluate(case: Case, snr_db: float | None, *, steady_periods: int, transient
         y += rng.standard_normal(y.shape) * rms * 10 ** (-snr_db / 20)
     names = [f"q{i}" for i in case.measured]
     basis = basis_of(case, disp)
-    data = prepare_frequency_data(u=u, y=y, sample_rate_hz=case.fs, samples_per_period=case.N,
-                                  basis=basis, band_hz=case.proc_hz, transient_periods=transient,
-                                  output_names=names, input_names=("F",),
-                                  output_quantity=case.quantity, **(data_options or {}))
-    dp = f"q{case.force_dof}"
-    spread = spread_function(data, basis, driving_point=dp)
-
-    def coef(model):
-        sp = nonlinear_coefficients(model, data, basis, driving_point=dp)
-        return [s.to_dict() for s in summarize_coefficients(sp)]
-
+    # the one entry point, as `fnsi-lab ident --auto` runs it
+    inp = input_from_arrays({"u": u, "y": y, "fs": case.fs, "N": case.N,
+                             "channels": np.array(names), "input_channels": np.array(["F"]),
+                             "quantity": case.quantity}, case.name)
+    cfg = IdentConfig(band_hz=tuple(case.proc_hz), nonlinearities=tuple(basis),
+                      inputs=(InputSpec("F", f"q{case.force_dof}"),),
+                      transient_periods=transient, output_quantity=case.quantity,
+                      auto=AutoOptions.from_dict(options or {}), **(data_options or {}))
     t0 = time.perf_counter()
-    res = auto.identify_auto(data, options, orders=range(case.orders[0], case.orders[1] + 1),
-                             coefficients=coef, spread=spread)
+    res = identify_input(inp, cfg, orders=range(case.orders[0], case.orders[1] + 1)).auto
     elapsed = time.perf_counter() - t0
     final = res.coefficients["reduced" if res.final == "reduced" else "full"]
     err = max(abs(c["error_percent"]) for c in final)
@@ -338,7 +335,7 @@ def main() -> int:
     ap.add_argument("--auto", default=None, metavar="JSON",
                     help='identify_auto options, e.g. \'{"criterion": "mdl"}\'')
     ap.add_argument("--data", default=None, metavar="JSON",
-                    help='prepare_frequency_data options, e.g. \'{"time_base": "bilinear"}\'')
+                    help='ident config keys, e.g. \'{"time_base": "bilinear"}\'')
     ap.add_argument("--write", action="store_true", help="write bench/RESULTS.md")
     a = ap.parse_args()
     import json
