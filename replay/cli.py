@@ -40,11 +40,75 @@ def make_identifier(args: argparse.Namespace, metadata: dict[str, Any],
         from fnsi_lab.api import load_config
 
         config = load_config(args.ident)  # a file, or a packaged example by name
+        check_ident_channels(config, channels)
     orders = getattr(args, "orders", None)
     if orders is None and (config is None or not config.orders):
         orders = getattr(args, "default_orders", DEFAULT_ORDERS)
     return config_identifier(config, truth=metadata.get("truth"), orders=orders,
                              channels=channels, harmonics=getattr(args, "harmonics", 1.0))
+
+
+def check_ident_channels(config: Any, channels: Any) -> None:
+    """Refuse an ident config naming channels the experiment does not record (before any
+    acquisition starts).
+
+    Raises
+    ------
+    ConfigError
+        Naming the ident file, the field, the channel and the experiment's channel list.
+    """
+    if config is None or not channels:
+        return
+    ins = [c.name for c in channels if c.is_force]
+    outs = [c.name for c in channels if not c.is_force]
+    file = getattr(config, "file", None)
+    fix = "use channel names of the experiment (fnsi-lab info FILE.mcap lists them)"
+    for name in config.outputs or ():
+        if name not in outs:
+            raise ConfigError(f"output channel {name!r} is not recorded by this experiment "
+                              f"(its output channels: {outs})", file=file, field="outputs", fix=fix)
+    selected = list(config.outputs or outs)
+    for spec in config.inputs:
+        if spec.name not in ins:
+            raise ConfigError(f"input channel {spec.name!r} is not recorded by this experiment "
+                              f"(its force channels: {ins})", file=file, field="inputs", fix=fix)
+        if spec.driving_point is not None and spec.driving_point not in selected:
+            raise ConfigError(f"driving point {spec.driving_point!r} of input {spec.name!r} is "
+                              f"not among the identified outputs {selected}", file=file,
+                              field="inputs", fix="name a recorded response channel at the "
+                                                  "excitation point (and list it in outputs:)")
+    for nl in config.nonlinearities:
+        for ch in getattr(nl, "channels", {}) or {}:
+            if ch not in selected:
+                where = "identified outputs" if config.outputs else "experiment's outputs"
+                raise ConfigError(f"nonlinearity {nl.name!r}: channel {ch!r} is not among the "
+                                  f"{where} {selected}", file=file, field="nonlinearities",
+                                  fix="add it to outputs: or name recorded channels")
+
+
+def identification_failure(service: Any) -> str | None:
+    """Why a run produced no identification (None when at least one update succeeded)."""
+    st = service.status
+    if service.updates:
+        return None
+    if st.failures:
+        return st.last_error or "the identification raised an error"
+    if st.periods == 0:
+        return (f"no complete period was received ({st.signal_s:.1f} s of signal in "
+                f"{st.blocks} blocks); record at least the transient periods plus one")
+    return (f"only {st.steady_periods} steady-state period(s) of {st.periods} received; "
+            "record more periods (excitation.periods) or fewer transient ones")
+
+
+def _positive_int(text: str) -> int:
+    """argparse type: an integer >= 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1 (0 would drop every block), got {value}")
+    return value
 
 
 class LiveRun:
@@ -188,7 +252,7 @@ def format_table(update: Any) -> str:
     from fnsi_lab.replay.service import AutoIdentification, mode_table, summary_rows
 
     if update is None:
-        return "no identification: not enough steady-state periods were received"
+        return "no identification (the reason follows)"
     if not isinstance(update.result, AutoIdentification):
         return f"nonparametric FRF from {update.n_periods} steady-state periods"
     lines = ["", "Result (last update)", "-" * 20]
@@ -298,6 +362,13 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     if interrupted:
         print("fnsi-lab replay: interrupted", file=sys.stderr)
         return 130
+    if source.end_reason == "damaged":
+        print(f"fnsi-lab replay: error: {source.end_detail}", file=sys.stderr)
+        return 2
+    failure = identification_failure(service)
+    if failure:
+        print(f"fnsi-lab replay: error: identification failed: {failure}", file=sys.stderr)
+        return 1
     return 0
 
 
@@ -312,8 +383,11 @@ def _cmd_live(args: argparse.Namespace) -> int:
     if args.blas_threads > 0:
         limit_blas_threads(args.blas_threads)
 
+    from fnsi_lab.outputs import check_output_path
+
     config = load_experiment(args.config)
-    output = Path(args.out or config.output)
+    output = check_output_path(config.output if args.out is None else args.out,
+                               force=args.force)
     pace = None if args.fast else args.speed
     source = make_source(config, pace=pace) if pace is not None else make_source(config)
     metadata = recording_metadata(config, source)
@@ -335,7 +409,7 @@ def _cmd_live(args: argparse.Namespace) -> int:
     stop = threading.Event()
     report = record_experiment(config, output, realtime=pace is not None, taps=[tap],
                                stop=stop, source=source)
-    service.finish()
+    service.finish()  # the tap was closed: the service ends after the last period
     run.flush_signals()
     run.stop_status()
     wall = time.monotonic() - t0
@@ -346,6 +420,14 @@ def _cmd_live(args: argparse.Namespace) -> int:
         print(f"serving the web viewer for {args.web_wait:g} s more at {sinks.web_url}",
               file=sys.stderr)
         time.sleep(args.web_wait)
+    if report.interrupted:
+        print(f"fnsi-lab {args.command}: interrupted", file=sys.stderr)
+        return 130
+    failure = identification_failure(service)
+    if failure:
+        print(f"fnsi-lab {args.command}: error: identification failed: {failure}",
+              file=sys.stderr)
+        return 1
     return 0
 
 
@@ -398,6 +480,8 @@ def _experiment_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", metavar="EXP.yaml",
                    help="experiment YAML (default: the packaged simulated SmallSat)")
     p.add_argument("--out", metavar="FILE.mcap", help="recording (default: the config's output)")
+    p.add_argument("--force", action="store_true",
+                   help="replace existing output files (the recording and the .rrd)")
 
 
 def register(subparsers: Any) -> None:
@@ -420,7 +504,7 @@ def register(subparsers: Any) -> None:
                "  fnsi-lab run --config lumped.yaml --rrd lumped.rrd    # packaged small model\n"
                "  fnsi-lab view smallsat.rrd                            # look at the result\n")
     _experiment_arguments(p)
-    p.add_argument("--queue-blocks", type=int, default=1 << 16, metavar="B",
+    p.add_argument("--queue-blocks", type=_positive_int, default=1 << 16, metavar="B",
                    help="capacity of the identification queue in blocks (drop-oldest)")
     _common(p, orders="2:60", harmonics=5.0)
     p.set_defaults(handler=_cmd_run, speed=None)
@@ -442,7 +526,7 @@ def register(subparsers: Any) -> None:
     p.add_argument("--speed", type=float, default=1.0, metavar="X",
                    help="pace a simulated source at X times real time (default 1)")
     p.add_argument("--fast", action="store_true", help="simulated sources: as fast as possible")
-    p.add_argument("--queue-blocks", type=int, default=4096, metavar="B",
+    p.add_argument("--queue-blocks", type=_positive_int, default=4096, metavar="B",
                    help="capacity of the identification queue in blocks (drop-oldest)")
     _common(p)
     p.set_defaults(handler=_cmd_live)
@@ -462,6 +546,7 @@ def register(subparsers: Any) -> None:
     p.add_argument("--speed", type=float, metavar="X",
                    help="recorded seconds per wall second (default: as fast as possible)")
     p.add_argument("--follow", action="store_true", help="follow a file still being written")
+    p.add_argument("--force", action="store_true", help="replace an existing .rrd file")
     p.add_argument("--follow-timeout", type=float, default=10.0, metavar="S",
                    help="with --follow, stop after S seconds without new data (default 10)")
     _common(p)

@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any, Callable, Iterator
 
 import numpy as np
 from mcap.records import Channel, DataEnd, Footer, Message, Metadata, Schema
+from mcap.exceptions import EndOfFile
 from mcap.stream_reader import StreamReader
 
 from fnsi_lab.daq.block import Block
@@ -46,8 +47,8 @@ class ReplayError(DataFileError):
 class _TailReader:
     """A ``read(n)`` over a file that may still grow: waits for bytes instead of hitting EOF.
 
-    Returns short (which mcap treats as the end) once ``stop`` is set, or when ``follow`` is
-    False, or after ``timeout_s`` without growth.
+    Raises mcap's ``EndOfFile`` on a short read: at once when ``follow`` is False, else once
+    ``stop`` is set or after ``timeout_s`` without growth.
     """
 
     def __init__(self, path: Path, *, follow: bool, timeout_s: float,
@@ -62,8 +63,10 @@ class _TailReader:
 
     def read(self, n: int = -1) -> bytes:
         data = self._f.read(n)
-        if not self._follow or n is None or n < 0 or len(data) == n:
+        if n is None or n < 0 or len(data) == n:
             return data
+        if not self._follow:  # short read: the file ends inside a record
+            raise EndOfFile()
         parts = [data]
         got = len(data)
         last_growth = time.monotonic()
@@ -79,6 +82,8 @@ class _TailReader:
             elif time.monotonic() - last_growth > self._timeout_s:
                 self.timed_out = True
                 break
+        if got < n:  # gave up waiting: the record is cut (see _iter_records)
+            raise EndOfFile()
         return b"".join(parts)
 
     def close(self) -> None:
@@ -87,26 +92,31 @@ class _TailReader:
 
 def _iter_records(path: Path, *, follow: bool, timeout_s: float, stop: threading.Event,
                   on_end: Callable[[str], None],
-                  tail_out: list[_TailReader] | None = None) -> Iterator[Any]:
+                  tail_out: list[_TailReader] | None = None,
+                  validate_crcs: bool = True) -> Iterator[Any]:
     """Yield MCAP records (chunk contents broken up) until the footer or the end of data.
 
-    ``on_end`` receives why the stream ended: ``footer``, ``timeout``, ``stopped`` or
-    ``truncated``.
+    ``on_end`` receives why the stream ended: ``footer``, ``timeout``, ``stopped``,
+    ``truncated``, or ``damaged: <what>`` (a CRC mismatch or a record that does not
+    decode although it was read whole).
     """
     tail = _TailReader(path, follow=follow, timeout_s=timeout_s, stop=stop)
     if tail_out is not None:
         tail_out.append(tail)
     reason = "truncated"
     try:
-        for record in StreamReader(tail).records:  # type: ignore[arg-type]
+        for record in StreamReader(tail, validate_crcs=validate_crcs).records:  # type: ignore[arg-type]
             yield record
             if isinstance(record, (Footer, DataEnd)):
                 reason = "footer"
                 return
-    except Exception:  # EndOfFile, struct.error, decompression errors: a cut-off file
+    except EndOfFile:  # a cut-off file (crashed writer) or a followed file that stopped
         pass
+    except Exception as exc:  # noqa: BLE001 - CRC, decompression, struct: damaged bytes
+        if not (stop.is_set() or tail.timed_out):
+            reason = f"damaged: {type(exc).__name__}: {exc}"
     finally:
-        if reason != "footer":
+        if reason == "truncated":
             reason = "stopped" if stop.is_set() else "timeout" if tail.timed_out else "truncated"
         tail.close()
         on_end(reason)
@@ -128,6 +138,9 @@ class ReplaySource(Source):
     follow_timeout_s : float, optional
         See ``follow``; also how long the constructor waits for the channel table of a
         file that has just been created.
+    validate_crcs : bool or None, optional
+        Check chunk CRCs (default: on, unless ``--no-crc-check``); a damaged chunk ends the
+        replay with ``end_reason == "damaged"``.
 
     Attributes
     ----------
@@ -135,7 +148,8 @@ class ReplaySource(Source):
         Metadata key (``experiment``, ``excitation``, ``truth``...) -> parsed JSON.
     end_reason : str or None
         ``footer`` (complete file), ``timeout`` (followed file stopped growing),
-        ``truncated`` (file cut off, e.g. a crashed writer) or ``stopped`` (closed early).
+        ``truncated`` (file cut off, e.g. a crashed writer), ``damaged`` (CRC mismatch or
+        undecodable record: ``end_detail`` says where) or ``stopped`` (closed early).
 
     Raises
     ------
@@ -153,7 +167,8 @@ class ReplaySource(Source):
 
     def __init__(self, path: str | os.PathLike[str], *, speed: float | None = None,
                  follow: bool = False,
-                 follow_timeout_s: float = DEFAULT_FOLLOW_TIMEOUT_S) -> None:
+                 follow_timeout_s: float = DEFAULT_FOLLOW_TIMEOUT_S,
+                 validate_crcs: bool | None = None) -> None:
         self.path = Path(path)
         if not self.path.is_file():
             raise ReplayError(f"{self.path}: no such recording")
@@ -171,6 +186,12 @@ class ReplaySource(Source):
         self.follow_timeout_s = float(follow_timeout_s)
         self.metadata: dict[str, Any] = {}
         self.end_reason: str | None = None
+        #: One-line description when ``end_reason == "damaged"``.
+        self.end_detail = ""
+        if validate_crcs is None:
+            from fnsi_lab.daq.recording import reader
+            validate_crcs = reader._CHECK_CRCS_BY_DEFAULT
+        self.validate_crcs = bool(validate_crcs)
         self.events_seen = 0
         channels, rate = self._read_header()
         super().__init__(channels, rate, pace=speed)
@@ -275,7 +296,8 @@ class ReplaySource(Source):
         if self._records is None:
             self._records = _iter_records(self.path, follow=self.follow,
                                           timeout_s=self.follow_timeout_s,
-                                          stop=self._stop_event, on_end=self._set_end)
+                                          stop=self._stop_event, on_end=self._set_end,
+                                          validate_crcs=self.validate_crcs)
         for record in self._records:
             if isinstance(record, Message):
                 if record.channel_id in self._samples_channel_ids:
@@ -294,6 +316,13 @@ class ReplaySource(Source):
         return None
 
     def _set_end(self, reason: str) -> None:
+        if reason.startswith("damaged"):
+            self.end_detail = (
+                f"{self.path}: damaged recording ({reason[len('damaged: '):]}); blocks up to "
+                f"the damage were replayed; run `fnsi-lab recover {self.path} "
+                f"{self.path.with_suffix('')}.recovered.mcap` to salvage every intact chunk "
+                "(or add --no-crc-check)")
+            reason = "damaged"
         self.end_reason = reason
 
     def _decode(self, message: Message) -> Block:

@@ -50,10 +50,93 @@ def add_viewer_arguments(parser: argparse.ArgumentParser) -> None:
                    help=f"stream to a running viewer (default URL {DEFAULT_CONNECT_URL})")
     g.add_argument("--serve-web", action="store_true",
                    help="serve the web viewer (open the printed http address in a browser)")
-    g.add_argument("--web-port", type=int, default=9090, metavar="PORT",
+    _add_server_arguments(g)
+
+
+def tcp_port(text: str) -> int:
+    """argparse type: a TCP port number, 1..65535."""
+    try:
+        port = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a port number, got {text!r}") from None
+    if not 1 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"port {port} is outside 1..65535")
+    return port
+
+
+def _add_server_arguments(g: Any) -> None:
+    """``--web-port``, ``--grpc-port`` and ``--bind`` of ``--serve-web``."""
+    g.add_argument("--web-port", type=tcp_port, default=9090, metavar="PORT",
                    help="HTTP port of --serve-web (default 9090; its gRPC port is 9876)")
-    g.add_argument("--grpc-port", type=int, default=9876, metavar="PORT",
+    g.add_argument("--grpc-port", type=tcp_port, default=9876, metavar="PORT",
                    help="gRPC port of --serve-web (default 9876)")
+    g.add_argument("--bind", default="127.0.0.1", metavar="ADDR",
+                   help="address the --serve-web servers listen on (default 127.0.0.1: this "
+                        "machine only; 0.0.0.0 serves every network interface)")
+
+
+def check_port_free(host: str, port: int, option: str) -> None:
+    """Raise :class:`ViewerError` when ``host:port`` cannot be listened on (busy, bad address)."""
+    import socket
+
+    try:
+        with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as sock:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            sock.bind((host, port))
+    except OSError as exc:
+        busy = exc.errno in (98, 48, 10048)  # EADDRINUSE on Linux, macOS, Windows
+        what = "is in use by another program" if busy else f"cannot be used ({exc.strerror})"
+        raise ViewerError(f"{option} {port} on {host} {what} (fix: choose another port with "
+                          f"{option}{', or stop the other server' if busy else ''})") from None
+
+
+def start_web_server(host: str, grpc_port: int, web_port: int,
+                     timeout_s: float = 20.0) -> "subprocess.Popen[bytes]":
+    """Start ``rerun --serve-web`` (gRPC proxy + web viewer) listening on ``host``.
+
+    The Python SDK's in-process servers listen on every interface; the ``rerun`` executable
+    takes ``--bind``, so the servers run there and the recording streams to them over gRPC.
+    The process is terminated when this process exits.
+    """
+    import atexit
+    import socket
+
+    for port, option in ((grpc_port, "--grpc-port"), (web_port, "--web-port")):
+        check_port_free(host, port, option)
+    exe = shutil.which("rerun")
+    if exe is None:
+        raise ViewerError("--serve-web needs the `rerun` executable of rerun-sdk on PATH "
+                          "(fix: pip install rerun-sdk, or activate its environment)")
+    proc = subprocess.Popen([exe, "--serve-web", "--bind", host, "--port", str(grpc_port),
+                             "--web-viewer-port", str(web_port)],
+                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    atexit.register(_stop_server, proc)
+    probe = "127.0.0.1" if host in ("0.0.0.0", "::", "") else host
+    deadline = time.monotonic() + timeout_s
+    while True:
+        if proc.poll() is not None:
+            raise ViewerError(f"`rerun --serve-web` exited at once (status {proc.returncode}) "
+                              f"on {host} ports {grpc_port}/{web_port} (fix: check --bind and "
+                              "the ports)")
+        try:
+            with socket.create_connection((probe, grpc_port), timeout=0.5):
+                return proc
+        except OSError:
+            if time.monotonic() > deadline:
+                _stop_server(proc)
+                raise ViewerError(f"the web viewer server did not start within {timeout_s:g} s "
+                                  f"(port {grpc_port})") from None
+            time.sleep(0.1)
+
+
+def _stop_server(proc: "subprocess.Popen[bytes]") -> None:
+    if proc.poll() is None:
+        proc.terminate()
+        try:
+            proc.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            proc.kill()
 
 
 @dataclass
@@ -111,8 +194,19 @@ def open_stream(args: argparse.Namespace, blueprint: Any, *, recording_id: str |
         spawn = False
     sink_list: list[Any] = []
     if rrd:
-        Path(rrd).parent.mkdir(parents=True, exist_ok=True)
-        sink_list.append(rr.FileSink(str(rrd)))
+        from fnsi_lab.outputs import check_output_path
+
+        try:
+            Path(rrd).parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise DataFileError(f"--rrd {rrd}: cannot create its folder ({exc.strerror}) "
+                                "(fix: choose a writable place)") from None
+        check_output_path(rrd, force=getattr(args, "force", False), option="--rrd")
+        try:
+            sink_list.append(rr.FileSink(str(rrd)))
+        except Exception as exc:  # noqa: BLE001 - the SDK raises plain exceptions
+            raise DataFileError(f"--rrd {rrd}: cannot be written ({exc}) "
+                                "(fix: choose a writable place)") from None
         sinks.rrd = str(rrd)
     if getattr(args, "connect", None):
         sink_list.append(rr.GrpcSink(args.connect))
@@ -127,13 +221,21 @@ def open_stream(args: argparse.Namespace, blueprint: Any, *, recording_id: str |
         if sink_list:
             sinks.notes.append("--serve-web streams only to the web viewer; "
                                "other sinks are ignored")
-        grpc_url = rec.serve_grpc(grpc_port=args.grpc_port, default_blueprint=blueprint)
-        rr.serve_web_viewer(web_port=args.web_port, open_browser=False, connect_to=grpc_url)
+        host = getattr(args, "bind", "127.0.0.1") or "127.0.0.1"
+        start_web_server(host, args.grpc_port, args.web_port)
+        shown = "127.0.0.1" if host in ("0.0.0.0", "::") else host
+        grpc_url = f"rerun+http://{shown}:{args.grpc_port}/proxy"
+        rec.set_sinks(rr.GrpcSink(grpc_url), default_blueprint=blueprint)
         sinks.grpc_url = grpc_url
-        sinks.web_url = f"http://127.0.0.1:{args.web_port}/?url={grpc_url}"
+        sinks.web_url = f"http://{shown}:{args.web_port}/?url={grpc_url}"
         sinks.notes.append(f"web viewer at {sinks.web_url}")
     elif sink_list:
-        rec.set_sinks(*sink_list, default_blueprint=blueprint)
+        try:
+            rec.set_sinks(*sink_list, default_blueprint=blueprint)
+        except Exception as exc:  # noqa: BLE001 - the SDK raises RuntimeError for a bad path
+            rec.disconnect()
+            raise DataFileError(f"cannot open the viewer sinks ({exc}) (fix: choose a "
+                                "writable --rrd path or a reachable --connect URL)") from None
     return rec, sinks
 
 
@@ -248,8 +350,7 @@ def register(subparsers: Any) -> None:
     p.add_argument("--connect", metavar="URL", nargs="?", const=DEFAULT_CONNECT_URL,
                    help="send it to a running viewer")
     p.add_argument("--serve-web", action="store_true", help="serve it to a web browser")
-    p.add_argument("--web-port", type=int, default=9090, metavar="PORT")
-    p.add_argument("--grpc-port", type=int, default=9876, metavar="PORT")
+    _add_server_arguments(p)
     p.set_defaults(handler=_cmd_view)
 
 
