@@ -1,0 +1,516 @@
+"""Identify many inputs as independent Dask tasks: plan, run, resume.
+
+One task per input calls the one public entry point :func:`fnsi_lab.identify` and writes
+that input's JSON result (the dict ``fnsi-lab ident --json`` writes, plus a ``campaign``
+section: content hashes, worker, force level, contact fractions); it returns one row of
+the campaign table (:mod:`fnsi_lab.campaign.table`). Tasks never raise: an input that
+fails becomes a row with ``status='error'`` and its one-line reason, so one bad file never
+stops the others.
+
+Resuming: an input is skipped when its result file exists and records the same input
+content hash (SHA-256 of the file) and the same configuration hash (config text, order
+choice, software version). Nothing else is trusted: a renamed input with the same content
+is still skipped, an edited config re-runs everything.
+
+Scheduling (``client``): ``None`` runs the tasks one after the other in this process (the
+serial baseline); otherwise a :class:`distributed.Client` (a local cluster of processes, or
+a running ``dask scheduler``). Workers read the inputs and write the results themselves,
+so on a real cluster both must be on a file system every worker sees.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import logging
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
+
+from fnsi_lab import __version__
+from fnsi_lab.errors import ConfigError, DataFileError, FnsiLabError
+from fnsi_lab.outputs import atomic_output, dumps
+
+#: File types an input may have (what :func:`fnsi_lab.identify` reads).
+INPUT_SUFFIXES = (".mcap", ".npz", ".mat")
+
+#: Key of the campaign section added to each per-input JSON result.
+CAMPAIGN_KEY = "campaign"
+
+
+class SchedulerError(FnsiLabError, ConnectionError):
+    """The Dask scheduler cannot be reached, or no worker joined it."""
+
+
+@dataclass(frozen=True)
+class BatchSpec:
+    """What every task of one campaign shares (see :func:`make_spec`).
+
+    Attributes
+    ----------
+    config : str
+        Absolute path of the ident configuration (remote workers read it too).
+    config_sha256 : str
+        Hash of the config text, the order choice and the software version.
+    order : int or None
+        Fixed model order (None with ``auto``).
+    orders : str or None
+        Order sweep of the robust pipeline (None: the config's, else 2:60).
+    """
+
+    config: str
+    config_sha256: str
+    order: int | None = None
+    orders: str | None = None
+
+    @property
+    def auto(self) -> bool:
+        """True for the robust automatic pipeline."""
+        return self.order is None
+
+    def identify(self, path: str) -> Any:
+        """:func:`fnsi_lab.identify` of one input, called as ``fnsi-lab ident`` calls it."""
+        import fnsi_lab
+
+        if self.auto:
+            return fnsi_lab.identify(path, self.config, orders=self.orders)
+        return fnsi_lab.identify(path, self.config, order=self.order)
+
+
+@dataclass(frozen=True)
+class PlannedInput:
+    """One input of the campaign and where its result goes."""
+
+    path: Path
+    sha256: str
+    result_path: Path
+
+
+# ---------------------------------------------------------------------------- planning
+def expand_inputs(patterns: Sequence[str]) -> list[Path]:
+    """Input files from paths, folders and glob patterns, in order, without duplicates.
+
+    A folder stands for its ``.mcap``/``.npz``/``.mat`` files (sorted); a pattern (``*``,
+    ``?``, ``[``) for its matches (sorted).
+
+    Raises
+    ------
+    DataFileError
+        A path that does not exist, or a pattern or folder with no input file in it.
+    """
+    import glob
+
+    found: list[Path] = []
+    for pattern in patterns:
+        if any(ch in pattern for ch in "*?["):
+            matches = [Path(p) for p in sorted(glob.glob(pattern, recursive=True))
+                       if Path(p).is_file()]
+            if not matches:
+                raise DataFileError(f"{pattern}: no file matches (fix: check the pattern; "
+                                    "quote it so the shell does not expand it first)")
+        elif Path(pattern).is_dir():
+            matches = sorted(p for p in Path(pattern).iterdir()
+                             if p.is_file() and p.suffix.lower() in INPUT_SUFFIXES)
+            if not matches:
+                raise DataFileError(f"{pattern}: folder has no {'/'.join(INPUT_SUFFIXES)} "
+                                    "file (fix: give the recordings' folder)")
+        elif Path(pattern).is_file():
+            matches = [Path(pattern)]
+        else:
+            raise DataFileError(f"{pattern}: no such file (fix: check the path)")
+        found.extend(matches)
+    unique: dict[Path, Path] = {}
+    for p in found:
+        unique.setdefault(p.resolve(), p)
+    return list(unique.values())
+
+
+def file_sha256(path: str | os.PathLike[str], chunk_bytes: int = 1 << 20) -> str:
+    """SHA-256 hex digest of a file's content (read in 1 MB chunks)."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as fh:
+        while chunk := fh.read(chunk_bytes):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def make_spec(config: str, *, order: int | None = None, auto: bool = False,
+              orders: str | None = None) -> BatchSpec:
+    """Validate the ident configuration once and hash the campaign settings.
+
+    Parameters
+    ----------
+    config : str
+        YAML path or packaged name (``smallsat39``).
+    order : int, optional
+        Fixed model order; without it and without ``auto``, the config's ``order``.
+    auto : bool
+        Robust automatic pipeline (information criterion, MDI, reduction).
+    orders : str, optional
+        Its order sweep (``2:60``).
+
+    Raises
+    ------
+    ConfigError
+        Invalid config, or no order chosen (same messages as ``fnsi-lab ident``).
+    """
+    import fnsi_lab
+
+    cfg = fnsi_lab.load_config(config)
+    path = Path(cfg.file).resolve()
+    if not auto:
+        order = order if order is not None else cfg.order
+        if order is None:
+            raise ConfigError("no model order", file=str(config), field="order",
+                              fix="give --order N or --auto (or 'order:' in the config)")
+    else:
+        order = None
+    choice = {"order": order} if order is not None else {"auto": True, "orders": orders}
+    digest = hashlib.sha256(path.read_bytes())
+    digest.update(json.dumps({**choice, "software_version": __version__},
+                             sort_keys=True).encode())
+    return BatchSpec(config=str(path), config_sha256=digest.hexdigest(), order=order,
+                     orders=orders)
+
+
+def plan_inputs(inputs: Sequence[Path], results_dir: Path) -> list[PlannedInput]:
+    """Hash every input and name its result file ``<results_dir>/<stem>.json``.
+
+    Inputs sharing a stem (``a/run1.mcap``, ``b/run1.mcap``) get the first 8 hex digits
+    of their content hash appended, so no result overwrites another.
+    """
+    stems: dict[str, int] = {}
+    for p in inputs:
+        stems[p.stem] = stems.get(p.stem, 0) + 1
+    planned = []
+    for p in inputs:
+        sha = file_sha256(p)
+        name = p.stem if stems[p.stem] == 1 else f"{p.stem}-{sha[:8]}"
+        planned.append(PlannedInput(path=p, sha256=sha, result_path=results_dir / f"{name}.json"))
+    return planned
+
+
+def previous_result(item: PlannedInput, spec: BatchSpec) -> dict | None:
+    """The stored result of ``item`` when it was made from the same content and config."""
+    try:
+        with open(item.result_path, encoding="utf-8") as fh:
+            result = json.load(fh)
+    except (OSError, ValueError):
+        return None
+    meta = result.get(CAMPAIGN_KEY) if isinstance(result, dict) else None
+    if (isinstance(meta, dict) and meta.get("input_sha256") == item.sha256
+            and meta.get("config_sha256") == spec.config_sha256):
+        return result
+    return None
+
+
+# ---------------------------------------------------------------------------- one task
+def recording_context(path: str | os.PathLike[str],
+                      nonlinearities: Sequence[Mapping[str, Any]] = ()) -> dict[str, Any]:
+    """Force level and per-coefficient contact fractions a recording carries.
+
+    Parameters
+    ----------
+    path : path-like
+        The input; only fnsi-lab recordings (``.mcap``) carry these (array files: ``{}``).
+    nonlinearities : sequence of dict
+        The ``nonlinearities`` of its JSON result (``name``, ``channels``,
+        ``coefficients``), to match with the elements of the recording's truth.
+
+    Returns
+    -------
+    dict
+        ``force_rms`` (the multisine RMS, unit of the force channel) and
+        ``contact_fraction`` (coefficient name -> fraction of the steady-state time its
+        stop was closed; simulated structures only), each present only when known.
+    """
+    if Path(path).suffix.lower() != ".mcap":
+        return {}
+    from fnsi_lab.daq.recording.reader import open_recording
+
+    rec = open_recording(path)
+    out: dict[str, Any] = {}
+    excitation = rec.excitation or {}
+    if isinstance(excitation.get("rms"), (int, float)):
+        out["force_rms"] = float(excitation["rms"])
+    truth = rec.truth or {}
+    if isinstance(truth.get("contact_fraction"), dict):
+        out["contact_fraction"] = contact_by_coefficient(
+            nonlinearities, truth.get("nonlinearities") or [], truth["contact_fraction"])
+    return out
+
+
+def contact_by_coefficient(nonlinearities: Sequence[Mapping[str, Any]],
+                           truth_elements: Sequence[Mapping[str, Any]],
+                           contact_fraction: Mapping[str, float]) -> dict[str, float]:
+    """Contact fraction of the stop behind each identified coefficient.
+
+    An identified element is the truth element of the same name, else the one acting on
+    the same channels with proportional weights (the config may name it differently).
+    Its coefficient ``<name>:neg`` is the stop ``<truth name>.neg``; an element with a
+    single stop (bilinear) gives that stop to its one coefficient.
+    """
+    out: dict[str, float] = {}
+    for nl in nonlinearities:
+        element = _matching_element(nl, truth_elements)
+        if element is None:
+            continue
+        stops = {k.split(".", 1)[1]: float(v) for k, v in contact_fraction.items()
+                 if k.split(".", 1)[0] == element["name"] and "." in k}
+        for coefficient in nl.get("coefficients") or []:
+            side = coefficient.split(":", 1)[1] if ":" in coefficient else None
+            if side in stops:
+                out[coefficient] = stops[side]
+            elif len(stops) == 1:
+                out[coefficient] = next(iter(stops.values()))
+    return out
+
+
+def _matching_element(nl: Mapping[str, Any], elements: Sequence[Mapping[str, Any]]
+                      ) -> Mapping[str, Any] | None:
+    for element in elements:
+        if element.get("name") == nl.get("name"):
+            return element
+    mine = {str(k): float(v) for k, v in (nl.get("channels") or {}).items()}
+    for element in elements:
+        theirs = {str(k): float(v) for k, v in (element.get("channels") or {}).items()}
+        if mine and set(mine) == set(theirs):
+            ratios = [theirs[k] / mine[k] for k in mine if mine[k]]
+            if ratios and all(abs(r - ratios[0]) <= 1e-9 * abs(ratios[0]) for r in ratios):
+                return element
+    return None
+
+
+def _worker_address() -> str:
+    """Address of the Dask worker running this task ('local' outside Dask)."""
+    try:
+        from distributed import get_worker
+
+        return str(get_worker().address)
+    except (ImportError, ValueError):
+        return "local"
+
+
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    return text if len(text) <= 500 else text[:497] + "..."
+
+
+def identify_task(item: PlannedInput, spec: BatchSpec) -> dict[str, Any]:
+    """Identify one input and write its JSON result; runs on a Dask worker.
+
+    Never raises for a bad input: the returned row then has ``status='error'``.
+
+    Returns
+    -------
+    dict
+        One campaign-table row (:func:`fnsi_lab.campaign.table.result_row`).
+    """
+    from fnsi_lab.blas import limit_blas_threads
+    from fnsi_lab.campaign.table import error_row, result_row
+
+    # one BLAS thread per worker: the workers already fill the cores
+    limit_blas_threads(1)
+    worker = _worker_address()
+    t0 = time.perf_counter()
+    try:
+        result = spec.identify(str(item.path)).to_json()
+        result[CAMPAIGN_KEY] = {
+            "input": str(item.path), "input_sha256": item.sha256,
+            "config": spec.config, "config_sha256": spec.config_sha256,
+            "order_choice": "auto" if spec.auto else spec.order, "orders": spec.orders,
+            "worker": worker, "wall_time_s": time.perf_counter() - t0,
+            **recording_context(item.path, result.get("nonlinearities") or [])}
+        with atomic_output(item.result_path) as fh:
+            fh.write(dumps(result, indent=2) + "\n")
+    except Exception as exc:  # noqa: BLE001 - any failure of one input is that input's error
+        return error_row(item, worker=worker, error=f"{type(exc).__name__}: {_one_line(exc)}")
+    return result_row(result, item, status="ok")
+
+
+# ---------------------------------------------------------------------------- the campaign
+@dataclass
+class BatchCounts:
+    """Task counts shown by the progress bar."""
+
+    total: int
+    done: int = 0
+    failed: int = 0
+    skipped: int = 0
+    running: int = 0
+
+    def note(self) -> str:
+        """``done 3, failed 1, running 2, skipped 4``."""
+        text = f"done {self.done}, failed {self.failed}, running {self.running}"
+        return text + (f", skipped {self.skipped}" if self.skipped else "")
+
+
+def find_done(planned: Sequence[PlannedInput], spec: BatchSpec,
+              previous_rows: Mapping[str, Mapping[str, Any]] | None = None
+              ) -> dict[int, dict[str, Any]]:
+    """Rows (``status='skipped'``) of the inputs identified before with the same config.
+
+    Parameters
+    ----------
+    planned : sequence of PlannedInput
+    spec : BatchSpec
+    previous_rows : mapping, optional
+        Rows of the previous campaign table (same config hash) by input hash: an input
+        whose row is there and whose result file still exists is skipped without reading
+        its JSON result (resuming a large campaign then costs one hash per input).
+        Otherwise the result file itself is checked (:func:`previous_result`).
+
+    Returns
+    -------
+    dict
+        Index in ``planned`` -> row.
+    """
+    from fnsi_lab.campaign.table import result_row
+
+    done = {}
+    for i, item in enumerate(planned):
+        known = (previous_rows or {}).get(item.sha256)
+        if (known is not None and known.get("status") in ("ok", "skipped")
+                and known.get("result") and Path(known["result"]).resolve()
+                == item.result_path.resolve() and item.result_path.is_file()):
+            done[i] = {**known, "file": str(item.path), "status": "skipped"}
+            continue
+        previous = previous_result(item, spec)
+        if previous is not None:
+            done[i] = result_row(previous, item, status="skipped")
+    return done
+
+
+def run_batch(planned: Sequence[PlannedInput], spec: BatchSpec, *, client: Any = None,
+              done: Mapping[int, dict[str, Any]] | None = None,
+              on_row: Callable[[dict[str, Any], BatchCounts], None] | None = None
+              ) -> list[dict[str, Any]]:
+    """Identify every planned input not done before and return the rows.
+
+    Parameters
+    ----------
+    planned : sequence of PlannedInput
+        From :func:`plan_inputs`; their result folder must exist.
+    spec : BatchSpec
+    client : distributed.Client or None
+        Where the tasks run; None runs them one after the other in this process.
+    done : mapping, optional
+        :func:`find_done` of these inputs (computed here when not given).
+    on_row : callable, optional
+        Called with each finished or skipped row and the counts (progress display).
+
+    Returns
+    -------
+    list of dict
+        One row per input, in the order of ``planned``.
+    """
+    rows = dict(find_done(planned, spec) if done is None else done)
+    counts = BatchCounts(total=len(planned), skipped=len(rows))
+    if on_row is not None:
+        for i in sorted(rows):
+            on_row(rows[i], counts)
+    todo = [i for i in range(len(planned)) if i not in rows]
+
+    def finished(i: int, row: dict[str, Any]) -> None:
+        rows[i] = row
+        counts.done += 1
+        counts.failed += row["status"] == "error"
+        if on_row is not None:
+            on_row(row, counts)
+
+    if client is None:
+        for i in todo:
+            counts.running = 1
+            finished(i, identify_task(planned[i], spec))
+        counts.running = 0
+    elif todo:
+        for i, row in _run_on_cluster(client, [planned[i] for i in todo], todo, spec, counts):
+            finished(i, row)
+    return [rows[i] for i in range(len(planned))]
+
+
+def _run_on_cluster(client: Any, items: Sequence[PlannedInput], indices: Sequence[int],
+                    spec: BatchSpec, counts: BatchCounts) -> Iterable[tuple[int, dict[str, Any]]]:
+    """Submit one task per item; yield ``(index, row)`` as tasks finish, in any order."""
+    from distributed import as_completed
+
+    from fnsi_lab.campaign.table import error_row
+
+    futures = {}
+    for i, item in zip(indices, items):
+        # pure=False: a re-run after a fix must run again even with the same arguments
+        future = client.submit(identify_task, item, spec, pure=False,
+                               key=f"identify-{item.path.stem}-{item.sha256[:8]}-{i}")
+        futures[future] = (i, item)
+    slots = max(sum(client.nthreads().values()), 1)
+    pending = len(futures)
+    counts.running = min(pending, slots)
+    try:
+        for future in as_completed(futures, raise_errors=False):
+            i, item = futures[future]
+            pending -= 1
+            counts.running = min(pending, slots)
+            if future.status == "finished":
+                row = future.result()
+            else:  # the task itself never raises: the worker died or the task was lost
+                exc = future.exception()
+                row = error_row(item, worker="", error=f"{type(exc).__name__}: {_one_line(exc)}")
+            yield i, row
+    finally:
+        client.cancel(list(futures))
+
+
+@contextlib.contextmanager
+def dask_client(scheduler: str = "local", workers: int | None = None, *,
+                connect_timeout_s: float = 30.0) -> Iterator[Any]:
+    """A :class:`distributed.Client` for the campaign, closed on exit.
+
+    Parameters
+    ----------
+    scheduler : str
+        ``'local'``: start a :class:`distributed.LocalCluster` of ``workers`` processes
+        with one thread each (and stop it on exit); ``'serial'``: no Dask, yields None
+        (tasks run in this process); otherwise the address of a running scheduler
+        (``tcp://host:8786``), whose workers are left running.
+    workers : int, optional
+        Local cluster: number of worker processes (default: the CPU count). Running
+        scheduler: wait until this many workers have joined (default: one).
+    connect_timeout_s : float
+        How long to wait for the scheduler and its workers.
+
+    Raises
+    ------
+    SchedulerError
+        The scheduler cannot be reached or not enough workers join in time.
+    """
+    if scheduler == "serial":
+        yield None
+        return
+    from distributed import Client, LocalCluster
+
+    if scheduler == "local":
+        n = int(workers or os.cpu_count() or 1)
+        # one thread per worker process: the identification is numpy/scipy-bound and the
+        # GIL would serialise a second thread; no dashboard (bokeh is not a dependency)
+        with LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                          dashboard_address=None, silence_logs=logging.ERROR) as cluster, \
+                Client(cluster) as client:
+            yield client
+        return
+    try:
+        client = Client(scheduler, timeout=f"{connect_timeout_s}s")
+    except (OSError, TimeoutError, ValueError) as exc:
+        raise SchedulerError(f"--scheduler {scheduler}: cannot connect ({_one_line(exc)}) "
+                             "(fix: start 'dask scheduler' and 'dask worker ADDRESS', or use "
+                             "--scheduler local)") from None
+    with client:
+        try:
+            client.wait_for_workers(int(workers or 1), timeout=connect_timeout_s)
+        except TimeoutError:
+            raise SchedulerError(f"--scheduler {scheduler}: fewer than {workers or 1} "
+                                 f"worker(s) joined within {connect_timeout_s:g} s (fix: start "
+                                 f"'dask worker {scheduler}')") from None
+        yield client
