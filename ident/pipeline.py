@@ -420,7 +420,9 @@ def _spectra_json(spectra: CoefficientSpectra | None) -> dict | None:
     return {"frequency_hz": spectra.frequencies_hz, "excited": spectra.excited,
             "names": list(spectra.names),
             "values": {n: {"re": spectra.values[:, i].real, "im": spectra.values[:, i].imag}
-                       for i, n in enumerate(spectra.names)}}
+                       for i, n in enumerate(spectra.names)},
+            # known values (simulations), for the report and viewers
+            "exact": {n: t for n, t in zip(spectra.names, spectra.truth or ()) if t is not None}}
 
 
 def identify_input(inp: IdentInput, cfg: IdentConfig, *, order: int | None = None,
