@@ -269,3 +269,36 @@ def test_contact_fraction_follows_the_element_not_its_name():
                    "coefficients": ["other"]}]
     assert contact_by_coefficient(identified, truth, contact) == {
         "stop:neg": 0.2, "stop:pos": 0.1, "gap": 0.05}
+
+
+def test_campaign_command_compares_levels_into_rrd_and_json(recordings, tmp_path, capsys):
+    from fnsi_lab.viewer.cli import rrd_entities
+
+    root, good, bad = recordings
+    out = tmp_path / "c.parquet"
+    assert _batch(root, out, "--scheduler", "serial", "--results", str(tmp_path / "res")) == 1
+    capsys.readouterr()
+    rrd, js = tmp_path / "campaign.rrd", tmp_path / "comparison.json"
+    assert main(["campaign", str(out), "--rrd", str(rrd), "--json", str(js)]) == 0
+    text = capsys.readouterr().out
+    assert "force level(s) (5, 10)" in text and "identification failed" in text
+    comparison = json.loads(js.read_text())
+    assert comparison["levels"] == [5.0, 10.0]
+    assert comparison["frf"]["output"] == "X3"  # the driving point of the config's input
+    # one structure: the underlying linear FRFs of both levels coincide (60 dB SNR data)
+    assert all(r["deviation"] < 0.02 for r in comparison["frf"]["runs"])
+    # the stop is in contact at both levels: both coefficients identifiable
+    for values in comparison["coefficients"].values():
+        assert [v["not_identifiable"] for v in values] == [None, None]
+    # three modes of the chain tracked over both levels, shifting by less than 0.5 %
+    assert len(comparison["modes"]) == 3
+    for mode in comparison["modes"]:
+        f = [v["mean"] for v in mode["frequency_hz"]]
+        assert len(f) == 2 and abs(f[1] - f[0]) < 0.005 * f[0]
+    entities = rrd_entities(rrd)
+    for name in ("/campaign/coefficients/stop_neg/mean", "/campaign/coefficients/stop_pos/runs",
+                 "/campaign/frequencies/frequency/mode_3/mean", "/campaign/summary"):
+        assert name in entities
+    assert sum(e.startswith("/campaign/frf/F-X3/run_") for e in entities) == 2
+    # outputs are not overwritten without --force
+    assert main(["campaign", str(out), "--rrd", str(rrd)]) == 2

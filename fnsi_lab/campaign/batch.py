@@ -327,7 +327,12 @@ def identify_task(item: PlannedInput, spec: BatchSpec) -> dict[str, Any]:
         with atomic_output(item.result_path) as fh:
             fh.write(dumps(result, indent=2) + "\n")
     except Exception as exc:  # noqa: BLE001 - any failure of one input is that input's error
-        return error_row(item, worker=worker, error=f"{type(exc).__name__}: {_one_line(exc)}")
+        row = error_row(item, worker=worker, error=f"{type(exc).__name__}: {_one_line(exc)}")
+        try:  # the level of a failed run still places it in the comparison
+            row["force_rms"] = recording_context(item.path).get("force_rms")
+        except Exception:  # noqa: BLE001 - an unreadable input has no level
+            pass
+        return row
     return result_row(result, item, status="ok")
 
 
@@ -422,10 +427,10 @@ def run_batch(planned: Sequence[PlannedInput], spec: BatchSpec, *, client: Any =
             on_row(row, counts)
 
     if client is None:
-        for i in todo:
-            counts.running = 1
-            finished(i, identify_task(planned[i], spec))
-        counts.running = 0
+        for n, i in enumerate(todo):
+            row = identify_task(planned[i], spec)
+            counts.running = 1 if n + 1 < len(todo) else 0  # the next one starts now
+            finished(i, row)
     elif todo:
         for i, row in _run_on_cluster(client, [planned[i] for i in todo], todo, spec, counts):
             finished(i, row)

@@ -84,17 +84,32 @@ def _campaign(args: argparse.Namespace) -> int:
             check_output_path(target, force=args.force, option=option)
     rows, settings = read_table(args.table)
     comparison = compare_campaign(rows, output=args.output,
+                                  driving_points=_driving_points(settings.get("config")),
                                   max_relative_spread=args.max_relative_spread,
                                   min_contact=args.min_contact)
+    text = format_comparison(comparison)
     if args.json != "-":
-        print(format_comparison(comparison))
+        print(text)
     if args.rrd:
         from fnsi_lab.campaign.view import save_campaign_rrd
 
-        save_campaign_rrd(comparison, args.rrd)
+        save_campaign_rrd(comparison, args.rrd, summary=f"```\n{text}\n```")
         print(f"wrote {args.rrd} (open with: rerun {args.rrd})")
     write_json(comparison.to_json(), args.json, force=True)
     return 0
+
+
+def _driving_points(config: str | None) -> dict[str, str]:
+    """Input -> driving-point output of the campaign's ident config ({} if unreadable)."""
+    import fnsi_lab
+    from fnsi_lab.errors import FnsiLabError
+
+    if not config:
+        return {}
+    try:
+        return dict(fnsi_lab.load_config(config).driving_points or {})
+    except (FnsiLabError, OSError):  # the config moved: the FRF then shows the first output
+        return {}
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -154,8 +169,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--max-relative-spread", type=float, default=0.1, metavar="R",
                    help="a coefficient whose spread exceeds R times |mean| is flagged "
                         "(default 0.1)")
-    p.add_argument("--min-contact", type=float, default=0.01, metavar="F",
-                   help="a stop closed less than this fraction of the time is flagged "
-                        "(default 0.01; simulated recordings carry it)")
+    p.add_argument("--min-contact", type=float, default=0.001, metavar="F",
+                   help="a coefficient whose stop is closed less than this fraction of the "
+                        "time is flagged (default 0.001; simulated recordings carry it)")
     p.add_argument("--force", action="store_true", help="replace existing output files")
     p.set_defaults(handler=_campaign)
