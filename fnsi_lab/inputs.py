@@ -39,7 +39,11 @@ def input_from_record(rec: Any, path: str = "") -> IdentInput:
     q = quants.pop() if len(quants) == 1 else None
     lines = getattr(rec, "excited_lines", None)
     exc = np.asarray(lines, int) if lines is not None else None
-    return IdentInput(u=np.asarray(rec.u, float), y=np.asarray(rec.y, float),
+    # One memory layout whatever the reader produced (read_periodic's channel selection is
+    # strided): numpy's sums round differently on strided arrays, and a recording must
+    # identify exactly like the same samples given as .npz (issue 17).
+    return IdentInput(u=np.ascontiguousarray(rec.u, float),
+                      y=np.ascontiguousarray(rec.y, float),
                       sample_rate_hz=float(rec.sample_rate_hz),
                       samples_per_period=int(rec.samples_per_period), input_channels=ins,
                       output_channels=outs,

@@ -112,8 +112,10 @@ def rate_from_increment(increment_s: float, *, path: str, field: str) -> float:
     # Six or more look like a rounded reciprocal (E13.5 holds six): allow half a unit of the
     # last digit; fewer are taken as exact (0.003 s is 333.33 Hz, not 300 Hz).
     digits = next(d for d in range(1, 18) if float(f"{dt:.{d - 1}e}") == dt)
-    tolerance = (0.5 * 10.0 ** (1 - digits) if digits >= 6 else 1e-12) * dt
     exact = 1.0 / dt
+    if digits < 6:
+        return exact
+    tolerance = 0.5 * 10.0 ** (1 - digits) * dt
     for d in range(1, 18):
         fs = float(f"{exact:.{d - 1}e}")
         if abs(1.0 / fs - dt) <= tolerance:
