@@ -17,6 +17,8 @@ A file looks like ``daq/data/smallsat.yaml`` (the default experiment)::
       realizations: 1
       seed: 0
       phases: random          # or schroeder
+    # excitation: {file: drive.json}   # instead: an exported drive (docs/hardware.md)
+    trigger: {channel: F-NC2W-Z, level: 20.0, slope: rising, pre_samples: 500}  # optional
     channels:                 # optional for simulated sources: the model's own table
       - {name: F-NC2W-Z, quantity: force, unit: N, node: NC2W, direction: Z}
       - {name: NC2W-Z, quantity: displacement, unit: m, node: NC2W, direction: Z}
@@ -64,6 +66,9 @@ class ExcitationConfig:
     levels : tuple of float
         Force levels (RMS, unit of the force channel) of a level sweep: ``acquire`` then
         records one file per level with the same phases (empty: one run at ``rms``).
+    drive : daq.drive.DriveDefinition or None
+        Set by ``excitation: {file: DRIVE.json}``: the exported drive this excitation
+        came from; its lines, phases and scaling are stored in the recording.
     """
 
     band_hz: tuple[float, float]
@@ -76,6 +81,7 @@ class ExcitationConfig:
     phases: Literal["random", "schroeder"] = "random"
     kind: Literal["multisine"] = "multisine"
     levels: tuple[float, ...] = ()
+    drive: Any = field(default=None, compare=False, repr=False)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able form."""
@@ -85,6 +91,8 @@ class ExcitationConfig:
                "realizations": self.realizations, "seed": self.seed, "phases": self.phases}
         if self.levels:
             out["levels"] = list(self.levels)
+        if self.drive is not None:
+            out.update(self.drive.recording_metadata())
         return out
 
 
@@ -116,6 +124,8 @@ class ExperimentConfig:
         Default MCAP path.
     block_size : int
         Samples per block (and per MCAP message).
+    trigger : daq.trigger.TriggerConfig or None
+        Software trigger: recording starts when a channel crosses a level.
     file : str or None
         Where the config was read from (for messages).
     text : str
@@ -129,6 +139,7 @@ class ExperimentConfig:
     channels: tuple[ChannelInfo, ...] = ()
     output: str = "recording.mcap"
     block_size: int = 100
+    trigger: Any = None
     file: str | None = None
     text: str = ""
 
@@ -211,6 +222,25 @@ def _parse_excitation(sec: Section, sample_rate_hz: float) -> ExcitationConfig:
     return exc
 
 
+def _excitation_from_drive(sec: Section, sample_rate_hz: float,
+                           file: str | None) -> ExcitationConfig:
+    """``excitation: {file: DRIVE.json}``: the multisine of an exported drive."""
+    from fnsi_lab.daq.drive import load_drive_definition
+
+    name = sec.string("file")
+    sec.finish()
+    path = Path(name)
+    if not path.is_absolute() and file:
+        path = Path(file).parent / path  # relative to the experiment file
+    drive = load_drive_definition(path)
+    if abs(drive.sample_rate_hz - sample_rate_hz) > 1e-9 * sample_rate_hz:
+        raise sec.error("file", f"the drive was made for {drive.sample_rate_hz:g} Hz, the "
+                        f"experiment samples at {sample_rate_hz:g} Hz",
+                        fix="export the drive with this experiment, or set sample_rate_hz "
+                            f"to {drive.sample_rate_hz:g}")
+    return replace(drive.excitation, drive=drive)
+
+
 def _parse_channels(items: list[Any], file: str | None) -> tuple[ChannelInfo, ...]:
     channels = []
     seen: dict[str, int] = {}
@@ -253,7 +283,15 @@ def parse_experiment(data: Any, *, file: str | None = None, text: str = "") -> E
     src.finish()
     excitation = None
     if top.has("excitation") and top.data["excitation"] is not None:
-        excitation = _parse_excitation(top.section("excitation"), rate)
+        exc_sec = top.section("excitation")
+        if exc_sec.has("file"):
+            excitation = _excitation_from_drive(exc_sec, rate, file)
+        else:
+            excitation = _parse_excitation(exc_sec, rate)
+    trigger = None
+    if top.has("trigger") and top.data["trigger"] is not None:
+        from fnsi_lab.daq.trigger import parse_trigger
+        trigger = parse_trigger(top.section("trigger"))
     channels = _parse_channels(top.items("channels", []), file)
     config = ExperimentConfig(
         name=top.string("name", Path(file).stem if file else "experiment"),
@@ -263,6 +301,7 @@ def parse_experiment(data: Any, *, file: str | None = None, text: str = "") -> E
         channels=channels,
         output=top.string("output", "recording.mcap"),
         block_size=top.integer("block_size", 100, minimum=1, maximum=1_000_000),
+        trigger=trigger,
         file=file,
         text=text,
     )

@@ -19,7 +19,7 @@ import hashlib
 import io
 import json
 import wave
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Literal, Sequence
 
@@ -155,9 +155,8 @@ def design_drive(excitation: ExcitationConfig, sample_rate_hz: float, *,
     if periods is not None:
         if periods < 1:
             raise ConfigError(f"periods must be >= 1, got {periods}", field="--periods")
-        excitation = ExcitationConfig(**{**_config_fields(excitation), "periods": int(periods),
-                                         "transient_periods": min(excitation.transient_periods,
-                                                                  int(periods) - 1)})
+        excitation = replace(excitation, periods=int(periods),
+                             transient_periods=min(excitation.transient_periods, int(periods) - 1))
     ms = _multisine(excitation, sample_rate_hz)
     scale = 1.0 if volts_per_newton is None else float(volts_per_newton)
     signal = ms.signal * scale if scale != 1.0 else ms.signal
@@ -171,12 +170,6 @@ def design_drive(excitation: ExcitationConfig, sample_rate_hz: float, *,
         volts_per_newton=None if volts_per_newton is None else float(volts_per_newton),
         signal_sha256=signal_hash(signal))
     return definition, signal
-
-
-def _config_fields(ex: ExcitationConfig) -> dict[str, Any]:
-    return {"band_hz": ex.band_hz, "rms": ex.rms, "samples_per_period": ex.samples_per_period,
-            "periods": ex.periods, "transient_periods": ex.transient_periods,
-            "realizations": ex.realizations, "seed": ex.seed, "phases": ex.phases}
 
 
 def _multisine(ex: ExcitationConfig, fs: float) -> Multisine:
@@ -239,7 +232,7 @@ def write_drive(path: str | Path, definition: DriveDefinition, signal: np.ndarra
     info["sha256"] = hashlib.sha256(data).hexdigest()
     with atomic_output(p, "wb") as fh:
         fh.write(data)
-    return DriveDefinition(**{**definition.__dict__, "file": info})
+    return replace(definition, file=info)
 
 
 def _wav_bytes(flat: np.ndarray, fs: float, encoding: str, full_scale: float | None,
@@ -366,7 +359,7 @@ def load_drive_definition(path: str | Path) -> DriveDefinition:
                           "multisine (edited file, or written by another version)", file=str(p),
                           fix="export the drive again with 'fnsi-lab excitation'")
     del signal
-    return DriveDefinition(**{**definition.__dict__, "file": dict(data.get("file", {}))})
+    return replace(definition, file=dict(data.get("file", {})))
 
 
 def read_drive(path: str | Path, definition: DriveDefinition | None = None) -> np.ndarray:

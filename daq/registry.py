@@ -56,6 +56,13 @@ def make_source(config: "ExperimentConfig", **kwargs: Any) -> "Source":
         Validated experiment.
     **kwargs
         Passed to the adapter's ``from_config`` (``pace=1.0`` for wall-clock pacing...).
+
+    With a ``trigger:`` section the adapter is wrapped in a
+    :class:`daq.trigger.TriggeredSource`.
     """
     cls = source_class(config.source.kind)
-    return cls.from_config(config, **kwargs)
+    source = cls.from_config(config, **kwargs)
+    if getattr(config, "trigger", None) is not None:  # software trigger on any source
+        from fnsi_lab.daq.trigger import TriggeredSource
+        source = TriggeredSource(source, config.trigger)
+    return source
