@@ -45,8 +45,8 @@ class LabRealism:
     dac_hold : bool
         Drive held between samples (zero-order hold DAC).
     antialias_order : int or None
-        Order of the causal Butterworth anti-alias filter on every channel; None: ideal
-        (the simulator's zero-phase filter only).
+        Order of the causal Butterworth anti-alias filter on every channel; None: an ideal
+        one (nothing at or above fs/2 is sampled).
     antialias_cutoff : float
         Its -3 dB frequency as a fraction of fs.
     snr_db : float or None
@@ -132,10 +132,13 @@ def _filter_and_sample(x_fine: np.ndarray, fs_fine: float, factor: int,
     """One fine-rate period ``(N * factor, c)`` -> filtered, sampled period ``(N, c)``.
 
     The causal Butterworth response is applied line by line (exact periodic steady state);
-    whatever it leaves above fs/2 aliases when every ``factor``-th sample is taken.
+    whatever it leaves above fs/2 aliases when every ``factor``-th sample is taken. Without
+    a filter order the filter is ideal (lines at and above fs/2 removed).
     """
     X = np.fft.rfft(x_fine, axis=0)
-    if lab.antialias_order:
+    if not lab.antialias_order:     # ideal acquisition: nothing at or above fs/2 is sampled
+        X[x_fine.shape[0] // (2 * factor):] = 0.0
+    else:
         fs = fs_fine / factor
         b, a = ssig.butter(int(lab.antialias_order), 2 * np.pi * lab.antialias_cutoff * fs,
                            analog=True)

@@ -1,0 +1,98 @@
+"""Output noise level without repeated periods: the non-excited lines of the band.
+
+With ``P >= 2`` steady periods the noise of the averaged output is measured directly from
+the period-to-period spread (:func:`ident.periodic.prepare_frequency_data`). Lab tests often
+record one period per realisation (a new random-phase multisine each time), so there is no
+spread to measure. An odd (or any sparse-grid) multisine leaves lines inside its band that
+the force does not drive: a linear system puts nothing there, an odd nonlinearity (cubic
+spring, symmetric stop) only odd lines, so the off-grid lines of an odd multisine carry the
+noise, plus mains hum and even-order distortion. Their level, smoothed over neighbouring
+lines, is the noise variance at the excited lines next to them (noise spectra are smooth).
+
+What it cannot see: noise on a full multisine (no off-grid line in the band), and the part
+of the odd distortion the basis does not model (it sits on the excited lines). Both are
+said in the result (``noise.source``, docs/ident.md).
+
+Pure numpy; spectra ``(n_lines, n_channels)``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fnsi_lab.ident.excitation import MAINS_HZ
+
+__all__ = ["noise_lines", "noise_from_nonexcited"]
+
+#: Median of ``|X|^2`` for circular complex Gaussian noise of variance 1 (exponential law).
+_MEDIAN_TO_MEAN = 1.0 / np.log(2.0)
+
+
+def noise_lines(excited_lines: np.ndarray, step: int, offset: int, n_bins: int,
+                sample_rate_hz: float, samples_per_period: int, *,
+                mains_zone: float = 3.0) -> np.ndarray:
+    """Off-grid bins inside the excited range, away from mains harmonics.
+
+    Parameters
+    ----------
+    excited_lines : int ndarray
+        Excited DFT bins of one period.
+    step, offset : int
+        Excitation grid ``k = offset (mod step)``; ``step == 1`` leaves no off-grid line.
+    n_bins : int
+        ``N // 2 + 1``.
+    sample_rate_hz : float
+    samples_per_period : int
+    mains_zone : float
+        Bins within this many lines of a 50/60 Hz harmonic are left out (hum).
+
+    Returns
+    -------
+    int ndarray
+        Bins usable as noise lines (empty when there are none).
+    """
+    exc = np.asarray(excited_lines, int)
+    if exc.size == 0 or step <= 1:
+        return np.zeros(0, int)
+    k = np.arange(max(int(exc.min()), 1), min(int(exc.max()) + 1, n_bins - 1))
+    k = k[k % step != offset]
+    df = float(sample_rate_hz) / int(samples_per_period)
+    f = k * df
+    hum = np.zeros(k.size, bool)
+    for f_m in MAINS_HZ:
+        h = np.round(f / f_m)
+        hum |= (h >= 1) & (np.abs(f - h * f_m) <= mains_zone * df)
+    return k[~hum]
+
+
+def noise_from_nonexcited(Y: np.ndarray, bins: np.ndarray, lines: np.ndarray, *,
+                          half_width: int = 16) -> np.ndarray:
+    """Noise variance of each output at each processed line from the noise lines.
+
+    Parameters
+    ----------
+    Y : complex ndarray, shape (R, N // 2 + 1, p)
+        Output spectra of one (averaged) period per realisation, every bin (numpy DFT / N).
+    bins : int ndarray, shape (K,)
+        Noise lines (:func:`noise_lines`), ``K >= 1``.
+    lines : int ndarray, shape (F0,)
+        Processed lines where the variance is wanted.
+    half_width : int
+        Each noise line's estimate is the median of ``|Y|^2`` over +-``half_width``
+        neighbouring noise lines and every realisation, divided by ``ln 2`` (the median of
+        an exponential law): robust to the odd hum or distortion line, and smooth.
+
+    Returns
+    -------
+    ndarray, shape (F0, p)
+        Variance of ``Y(k)`` (output units squared), linearly interpolated between noise
+        lines and held constant beyond them.
+    """
+    P2 = np.abs(np.asarray(Y)[:, bins, :]) ** 2                    # (R, K, p)
+    K = bins.size
+    est = np.empty((K, P2.shape[2]))
+    for j in range(K):
+        lo, hi = max(j - half_width, 0), min(j + half_width + 1, K)
+        est[j] = np.median(P2[:, lo:hi, :].reshape(-1, P2.shape[2]), axis=0)
+    est *= _MEDIAN_TO_MEAN
+    return np.stack([np.interp(lines, bins, est[:, i]) for i in range(est.shape[1])], axis=1)
