@@ -200,6 +200,8 @@ class ServiceStatus:
     max_latency_s: float = 0.0
     signal_s: float = 0.0
     started_s: float = field(default_factory=time.monotonic)
+    #: Drive vs acquisition clock of the latest snapshot (daq.periodicity.ClockCheck).
+    clock: Any = None
 
     @property
     def rate(self) -> float:
@@ -221,6 +223,9 @@ class ServiceStatus:
             parts.append(f"latency {self.last_latency_s:.2f}s")
         if self.failures:
             parts.append(f"failures {self.failures}")
+        if self.clock is not None and math.isfinite(self.clock.offset_ppm):
+            parts.append(f"clock {self.clock.offset_ppm:+.1f} ppm"
+                         + (" WARNING: drive/acquisition clocks differ" if self.clock.warning else ""))
         return " | ".join(parts)
 
 
@@ -511,6 +516,8 @@ class IdentService:
         record = self.snapshot()
         if record is None:
             return
+        from fnsi_lab.daq.periodicity import check_record_clock
+        self.status.clock = check_record_clock(record)
         with self._mail_cv:
             if self._mailbox:
                 self.status.skipped += 1
@@ -716,7 +723,8 @@ def auto_view(update: ServiceUpdate) -> dict[str, Any]:
         view["coefficients"] = {"frequency_hz": ai.coefficient_curves["frequency_hz"],
                                 "full": ai.coefficient_curves.get("full"),
                                 "reduced": ai.coefficient_curves.get("reduced"),
-                                "exact": ai.exact_coefficients}
+                                "exact": ai.exact_coefficients,
+                                "excited": data.excited}
     kept_model = res.reduced if res.reduced is not None else res.model
     modes = kept_model.poles.modes()
     with np.errstate(divide="ignore", invalid="ignore"):

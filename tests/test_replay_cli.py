@@ -12,6 +12,17 @@ from fnsi_lab.viewer import paths
 from fnsi_lab.viewer.cli import rrd_entities, rrd_text
 
 
+def _values(path, entity: str, name: str) -> list:
+    """Physical values of a figure series (static ``AnyValues`` column; the last logged)."""
+    out = []
+    for chunk in RrdReader(str(path)).stream().collect().stream():
+        if chunk.entity_path == entity and chunk.is_static:
+            batch = chunk.to_record_batch()
+            if name in batch.schema.names:
+                out = batch.column(name).to_pylist()[-1]
+    return out
+
+
 def _scalars(path, entity: str) -> list[list[float]]:
     out = []
     for chunk in RrdReader(str(path)).stream().collect().stream():
@@ -32,19 +43,19 @@ def test_replay_to_rrd_holds_poles_mdi_and_criterion(tmp_path, capsys):
     entities = rrd_entities(rrd)
     for e in (paths.ORDER_CRITERION, paths.ORDER_SELECTED, paths.MDI_KEPT, paths.FRF_MEASURED,
               paths.FRF_LINEAR, paths.FRF_MODEL, paths.stabilisation_class("stable"),
-              paths.convergence("natural_frequency_hz"), paths.signal_group("force"),
+              paths.convergence_mode("natural_frequency_hz", 1), paths.signal_group("force"),
               paths.signal_group("displacement"), paths.SUMMARY, paths.STATUS_LOG):
         assert e in entities, e
     # the identified first mode of the chain (9.836 Hz) is among the logged poles
     freqs = np.concatenate([np.asarray(v, float) for v in
                             _scalars(rrd, paths.convergence("natural_frequency_hz"))])
     assert np.min(np.abs(freqs - 9.836)) < 0.01
-    # MDI (log10) of the kept poles and the threshold line are there, finite
-    kept = [v[0] for v in _scalars(rrd, paths.MDI_KEPT)]
-    thr = [v[0] for v in _scalars(rrd, paths.MDI_THRESHOLD)]
+    # MDI of the kept poles and the threshold are there, finite
+    kept = _values(rrd, paths.MDI_KEPT, "mdi")
+    thr = _values(rrd, paths.MDI_THRESHOLD, "threshold")
     assert kept and thr and np.all(np.isfinite(kept + thr))
     # the highest-MDI pole is kept
-    removed = [v[0] for v in _scalars(rrd, paths.MDI_REMOVED)]
+    removed = _values(rrd, paths.MDI_REMOVED, "mdi")
     assert max(kept) > max(removed, default=-np.inf)
     # every sample reached the viewer (4 periods of 512 samples)
     assert sum(1 for _ in _scalars(rrd, paths.signal_group("force"))) == 4 * 512
@@ -81,13 +92,13 @@ def test_live_runs_the_lumped_experiment_end_to_end(tmp_path, capsys):
     assert {paths.FRF_MEASURED, paths.signal_group("force"), paths.MDI_KEPT,
             paths.coefficient(name, "full"), paths.coefficient(name, "exact")} <= entities
     # the coefficient over the excited band is within 0.5 % of the truth, logged exactly
-    assert [v[0] for v in _scalars(rrd, paths.coefficient(name, "exact"))][:2] == [1e9, 1e9]
-    full = np.array([v[0] for v in _scalars(rrd, paths.coefficient(name, "full"))])
+    assert _values(rrd, paths.coefficient(name, "exact"), "exact") == [1e9]
+    full = np.array(_values(rrd, paths.coefficient(name, "full"), "re"))
     assert abs(np.median(full) / 1e9 - 1) < 5e-3
     # the summary table reports the error against the truth
     assert "error" in rrd_text(rrd, paths.SUMMARY)
     # the three modes of the chain are kept (log10 MDI of kept poles)
-    kept = _scalars(rrd, paths.MDI_KEPT)
+    kept = _values(rrd, paths.MDI_KEPT, "mdi")
     assert len(kept) >= 3
 
 

@@ -31,24 +31,18 @@ def column(batches, name: str, *, static: bool = False) -> list:
     return values
 
 
-def scalars_by_index(batches, index: str) -> list[tuple[int, list[float]]]:
-    """Sorted (index value, scalars) rows of a Scalars entity."""
-    rows = []
-    for is_static, batch in batches:
-        if is_static or index not in batch.schema.names:
-            continue
-        idx = batch.column(index).cast("int64").to_pylist()
-        val = batch.column("Scalars:scalars").to_pylist()
-        rows += list(zip(idx, val))
-    return sorted(rows, key=lambda r: r[0])
+def static_values(batches, name: str) -> list:
+    """The last static value of column ``name`` (a figure series' physical values)."""
+    got = column(batches, name, static=True)
+    assert got, f"no static column {name}"
+    return got[-1]
 
 
 @pytest.fixture
 def rec_path(tmp_path):
     path = tmp_path / "run.rrd"
     rec = rr.RecordingStream("fnsi-lab-test", recording_id="test")
-    rec.save(str(path), default_blueprint=blueprint(("force", "displacement"),
-                                                    coefficient_names=["k_nl"]))
+    rec.save(str(path), default_blueprint=blueprint(("force", "displacement")))
     yield rec, path
 
 
@@ -81,62 +75,77 @@ def test_signals_go_to_one_entity_per_group_on_acq_time(rec_path):
     assert column(disp, "SeriesLines:names", static=True) == [["x1", "x2"]]
 
 
-def test_identification_subtrees_hold_the_expected_values(rec_path):
+def test_identification_figures_hold_the_physical_values(rec_path):
     rec, path = rec_path
-    vlog.log_styles(rec, coefficient_names=["k_nl"])
     f = np.array([5.0, 10.5, 20.25])
     h = np.array([1.0, 0.1j, -0.01])
+    order = [2, 4, 4, 6, 6, 6, 6]
+    freq = [10, 10, 20, 10, 20, 20.5, 33]
+    cls = ["new", "frequency", "new", "stable", "stable", "stable", "unstable"]
     vlog.log_identification(rec, {
         "frf": {"frequency_hz": f, "measured": h, "linear": 2 * h, "model": h},
-        "stabilisation": {"order": [2, 4, 4, 6, 6, 6], "frequency_hz": [10, 10, 20, 10, 20, 33],
-                          "pole_class": ["new", "frequency", "new", "stable", "stable",
-                                         "unstable"]},
+        "stabilisation": {"order": order, "frequency_hz": freq, "pole_class": cls,
+                          "damping_ratio": [0.01] * 6 + [-0.02]},
         "criterion": {"orders": [2, 4, 6, 8], "criterion": [100.0, 1.0, 10.0, np.inf],
                       "selected_order": 4},
         "mdi": {"frequency_hz": [10.0, 20.0, 33.0], "mdi": [1e-2, 1e-4, 1e-9],
                 "kept": [True, True, False], "threshold": 1e-6},
         "coefficients": {"frequency_hz": f, "full": {"k_nl": [1.1e7, 0.9e7, 1.0e7 + 5j]},
-                         "reduced": {"k_nl": [1.0e7, 1.0e7, 1.0e7]}, "exact": {"k_nl": 1e7}},
+                         "reduced": {"k_nl": [1.0e7, 1.0e7, 1.0e7]},
+                         "exact": {"k_nl": 1e7, "k_not_estimated": 3.0}},
         "convergence": {"update": 3, "acq_time_s": 49.152,
-                        "values": {"natural_frequency_hz": [10.0, 20.0]}},
+                        "values": {"natural_frequency_hz": [10.0, 28.34],
+                                   "selected_order": [4]}},
         "summary": vlog.summary_markdown("SmallSat", [("order", "4")],
                                          [{"mode": 1, "f (Hz)": 10.0}]),
-    })
+    }, update=3)
     _finish(rec)
     got = read_rrd(path)
 
-    frf = scalars_by_index(got[paths.FRF_MEASURED], paths.TIME_FREQUENCY)
-    assert [i for i, _ in frf] == [5000, 10500, 20250]
-    assert [v[0] for _, v in frf] == pytest.approx([0.0, -20.0, -40.0])
-    lin = scalars_by_index(got[paths.FRF_LINEAR], paths.TIME_FREQUENCY)
-    assert lin[0][1][0] == pytest.approx(20 * np.log10(2))
+    # FRF: every line with its complex value; the canvas lines exist
+    measured = got[paths.FRF_MEASURED]
+    assert static_values(measured, "frequency_hz") == [5.0, 10.5, 20.25]
+    assert static_values(measured, "re") == pytest.approx(h.real)
+    assert static_values(measured, "im") == pytest.approx(h.imag)
+    assert static_values(got[paths.FRF_LINEAR], "re") == pytest.approx(2 * h.real)
+    assert f"{paths.FRF_PHASE}/model" in got
 
-    stable = scalars_by_index(got[paths.stabilisation_class("stable")], paths.TIME_ORDER)
-    assert stable == [(6, [10.0]), (6, [20.0])]
-    new = scalars_by_index(got[paths.stabilisation_class("new")], paths.TIME_ORDER)
-    assert new == [(2, [10.0]), (4, [20.0])]
-    assert column(got[paths.stabilisation_class("unstable")], "SeriesPoints:names",
-                  static=True) == [["unstable (zeta < 0)"]]
+    # stabilisation diagram: every pole once, several per order (the former export lost them)
+    exported = []
+    for c in paths.POLE_CLASSES:
+        batches = got[paths.stabilisation_class(c)]
+        o = column(batches, "order", static=True)
+        if o and o[-1]:
+            exported += [(c, n, fr) for n, fr in zip(o[-1], static_values(batches,
+                                                                         "frequency_hz"))]
+    assert sorted(exported) == sorted(zip(cls, order, map(float, freq)))
+    assert static_values(got[paths.stabilisation_class("unstable")], "damping_ratio") == [-0.02]
+    positions = column(got[paths.stabilisation_class("stable")], "Points2D:positions",
+                       static=True)[-1]
+    assert len(positions) == 3
 
-    crit = scalars_by_index(got[paths.ORDER_CRITERION], paths.TIME_ORDER)
-    assert crit == [(2, [2.0]), (4, [0.0]), (6, [1.0])]  # log10; the unstable inf is skipped
-    assert scalars_by_index(got[paths.ORDER_SELECTED], paths.TIME_ORDER) == [(4, [0.0])]
+    # criterion: all orders kept (inf as is), the selected point
+    assert static_values(got[paths.ORDER_CRITERION], "order") == [2, 4, 6, 8]
+    assert static_values(got[paths.ORDER_SELECTED], "criterion") == [1.0]
 
-    kept = scalars_by_index(got[paths.MDI_KEPT], paths.TIME_FREQUENCY)
-    assert kept == [(10000, [pytest.approx(-2.0)]), (20000, [pytest.approx(-4.0)])]
-    removed = scalars_by_index(got[paths.MDI_REMOVED], paths.TIME_FREQUENCY)
-    assert removed == [(33000, [pytest.approx(-9.0)])]
-    thr = scalars_by_index(got[paths.MDI_THRESHOLD], paths.TIME_FREQUENCY)
-    assert [i for i, _ in thr] == [10000, 33000] and thr[0][1] == [pytest.approx(-6.0)]
+    assert static_values(got[paths.MDI_KEPT], "mdi") == [1e-2, 1e-4]
+    assert static_values(got[paths.MDI_REMOVED], "frequency_hz") == [33.0]
+    assert static_values(got[paths.MDI_THRESHOLD], "threshold") == [1e-6]
 
-    full = scalars_by_index(got[paths.coefficient("k_nl", "full")], paths.TIME_FREQUENCY)
-    assert [v[0] for _, v in full] == [1.1e7, 0.9e7, 1.0e7]  # real part
-    exact = scalars_by_index(got[paths.coefficient("k_nl", "exact")], paths.TIME_FREQUENCY)
-    assert exact == [(5000, [1e7]), (20250, [1e7])]
+    full = got[paths.coefficient("k_nl", "full")]
+    assert static_values(full, "re") == [1.1e7, 0.9e7, 1.0e7]
+    assert static_values(full, "im") == [0.0, 0.0, 5.0]
+    assert static_values(got[paths.coefficient("k_nl", "exact")], "exact") == [1e7]
+    # the exact value of a coefficient that is not estimated is not drawn
+    assert not any("k_not_estimated" in e for e in got)
 
-    conv = got[paths.convergence("natural_frequency_hz")]
-    assert column(conv, "Scalars:scalars") == [[10.0, 20.0]]
-    assert column(conv, paths.TIME_UPDATE) == [3]
+    # per-update series: one per mode, named by it, lines and points (visible at once)
+    mode2 = got[paths.convergence_mode("natural_frequency_hz", 2)]
+    assert column(mode2, "Scalars:scalars") == [[28.34]]
+    assert column(mode2, paths.TIME_UPDATE) == [3]
+    assert column(mode2, "SeriesLines:names", static=True)[-1] == ["mode 2 (28.3 Hz)"]
+    assert column(mode2, "SeriesPoints:names", static=True)[-1] == ["mode 2 (28.3 Hz)"]
+    assert column(got[paths.convergence("selected_order")], "Scalars:scalars") == [[4.0]]
 
     text = rrd_text(path, paths.SUMMARY)
     assert "| order | 4 |" in text and "| 1 | 10 |" in text
@@ -162,9 +171,9 @@ def test_status_and_blueprint_are_stored(rec_path):
                 origins |= {v[0] if isinstance(v, list) else v
                             for v in batch.column(name).to_pylist() if v}
     assert blueprint_entities
-    for p in (paths.STABILISATION, paths.ORDER, paths.FRF, paths.MDI,
+    for p in (paths.STABILISATION, paths.ORDER, paths.FRF, paths.MDI, paths.COEFFICIENTS,
               paths.CONVERGENCE_FREQUENCIES, paths.CONVERGENCE_COEFFICIENTS,
-              paths.signal_group("force"), f"{paths.COEFFICIENTS}/k_nl"):
+              paths.signal_group("force")):
         assert p in origins
 
 
@@ -195,7 +204,7 @@ def test_part_sanitises_names():
     assert paths.part("///") == "unnamed"
 
 
-def test_empty_inputs_log_nothing_and_do_not_fail(rec_path):
+def test_empty_inputs_log_empty_figures_and_do_not_fail(rec_path):
     rec, path = rec_path
     vlog.log_frf(rec, [], measured=[])
     vlog.log_stabilisation(rec, [], [], [])
@@ -205,34 +214,41 @@ def test_empty_inputs_log_nothing_and_do_not_fail(rec_path):
     vlog.log_convergence(rec, 1, 0.0, {"natural_frequency_hz": []})
     _finish(rec)
     got = read_rrd(path)
-    assert paths.FRF_MEASURED not in got and paths.convergence("natural_frequency_hz") not in got
+    assert static_values(got[paths.FRF_MEASURED], "frequency_hz") == []
+    assert paths.convergence_mode("natural_frequency_hz", 1) not in got
 
 
-def test_updates_get_their_own_entities_and_the_previous_one_is_hidden(rec_path):
-    """Rerun averages values sharing an x within one series: updates must not share one."""
+def test_an_update_replaces_the_figures(rec_path):
+    """Static figures: the newest update is what every tab shows, whatever the cursor."""
     rec, path = rec_path
     f = np.array([10.0, 20.0])
     for k, gain in ((1, 1.0), (2, 10.0)):
         vlog.log_identification(rec, {
             "frf": {"frequency_hz": f, "measured": gain * np.ones(2)},
-            "mdi": {"frequency_hz": f, "mdi": [1.0, 1e-6], "kept": [True, k == 1],
-                    "threshold": 1e-3},
             "stabilisation": {"order": [2, 4], "frequency_hz": [10.0, 10.0],
                               "pole_class": ["new", "stable"] if k == 1 else ["new", "new"]},
         }, update=k)
     _finish(rec)
     got = read_rrd(path)
-    one, two = (paths.versioned(paths.FRF_MEASURED, k) for k in (1, 2))
-    assert scalars_by_index(got[one], paths.TIME_FREQUENCY) == [(10000, [0.0]), (20000, [0.0])]
-    assert scalars_by_index(got[two], paths.TIME_FREQUENCY) == [(10000, [20.0]), (20000, [20.0])]
-    assert column(got[one], "SeriesLines:visible_series", static=True) == [[False]]
-    assert column(got[two], "SeriesLines:visible_series", static=True) == []
-    # a class present in update 1 only is hidden by update 2
-    stable1 = paths.versioned(paths.stabilisation_class("stable"), 1)
-    assert column(got[stable1], "SeriesPoints:visible_series", static=True) == [[False]]
-    assert paths.versioned(paths.stabilisation_class("stable"), 2) not in got
-    removed2 = got[paths.versioned(paths.MDI_REMOVED, 2)]
-    assert scalars_by_index(removed2, paths.TIME_FREQUENCY) == [(20000, [pytest.approx(-6.0)])]
+    assert static_values(got[paths.FRF_MEASURED], "re") == [10.0, 10.0]
+    # a class update 2 no longer has is emptied, not left over from update 1
+    assert static_values(got[paths.stabilisation_class("stable")], "order") == []
+    assert static_values(got[paths.stabilisation_class("new")], "order") == [2, 4]
+
+
+def test_axis_ticks_are_round_and_cover_the_range():
+    from fnsi_lab.viewer.figure import Axis, nice_ticks
+
+    t = nice_ticks(4.9, 50.1)
+    assert list(t) == [10, 20, 30, 40, 50]
+    assert list(nice_ticks(-0.013, 0.0)) == pytest.approx([-0.0125, -0.01, -0.0075, -0.005,
+                                                           -0.0025, 0.0])
+    vals, labels = Axis("f (Hz)", 5.0, 250.0).ticks()
+    assert labels == ["50", "100", "150", "200", "250"]
+    vals, labels = Axis("MDI", 3e-7, 2e4, log=True).ticks()
+    assert labels[0] == "1e-6" and labels[-1] == "1e4" and np.all(np.diff(np.log10(vals)) > 0)
+    ax = Axis.fit("x", [1.0, 3.0], pad=0.0)
+    assert ax.unit([1.0, 2.0, 3.0]) == pytest.approx([0.0, 0.5, 1.0])
 
 
 def test_view_spawn_without_display_says_how_to_open_it(rec_path, capsys, monkeypatch):

@@ -7,7 +7,17 @@
   ``view`` command.
 """
 
-from fnsi_lab.viewer import paths  # noqa: F401
-from fnsi_lab.viewer.blueprint import blueprint  # noqa: F401
+from typing import Any
 
 __all__ = ["paths", "blueprint"]
+
+
+def __getattr__(name: str) -> Any:  # lazy: importing the package does not load rerun
+    import importlib
+
+    # import_module, not `from fnsi_lab.viewer import paths`: that asks this hook again
+    if name == "paths":
+        return importlib.import_module("fnsi_lab.viewer.paths")
+    if name == "blueprint":
+        return importlib.import_module("fnsi_lab.viewer.blueprint").blueprint
+    raise AttributeError(f"module 'fnsi_lab.viewer' has no attribute {name!r}")

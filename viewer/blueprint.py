@@ -1,10 +1,15 @@
 """The one declarative Rerun blueprint of fnsi-lab; view origins come from :mod:`viewer.paths`.
 
-Layout: a "Live" tab (signals with a bounded, cursor-relative window, convergence, status,
-summary), an "Order" tab (stabilisation diagram, information criterion) and a "Frequency"
-tab (FRF, MDI, nonlinear coefficients). Rerun plots every time-series view against the
-timeline selected in the time panel: choose ``acq_time`` for the Live tab, ``model_order``
-for the Order tab and ``frequency_mHz`` for the Frequency tab.
+Layout: a "Live" tab (signals with a bounded, cursor-relative window, natural frequencies
+and coefficients per update, status, log, summary), an "Order" tab (stabilisation diagram,
+information criterion) and a "Frequency" tab (FRF magnitude and phase, MDI per pole,
+nonlinear coefficients).
+
+Rerun has one global timeline (the time panel's) and a time-series view plots against it.
+So only the Live tab uses time-series views, on ``acq_time`` (the timeline selected when
+the viewer opens); the Order and Frequency tabs are 2D views of static figures
+(:mod:`viewer.figure`), which show their content whatever timeline or cursor is selected
+(``docs/live.md``).
 """
 
 from __future__ import annotations
@@ -14,6 +19,8 @@ from typing import Sequence
 import rerun.blueprint as rrb
 
 from fnsi_lab.viewer import paths
+from fnsi_lab.viewer.figure import canvas_range
+from fnsi_lab.viewer.log import FIGURE_LAYOUT
 
 #: Seconds of signal history shown behind the time cursor (a bounded window keeps the
 #: viewer responsive at kHz rates).
@@ -21,8 +28,7 @@ DEFAULT_WINDOW_S = 20.0
 
 
 def blueprint(groups: Sequence[str] = ("force", "displacement"), *,
-              window_s: float = DEFAULT_WINDOW_S, timeline: str = paths.TIME_ACQ,
-              coefficient_names: Sequence[str] = (), active_tab: int = 0) -> rrb.Blueprint:
+              window_s: float = DEFAULT_WINDOW_S, active_tab: int = 0) -> rrb.Blueprint:
     """Build the blueprint.
 
     Parameters
@@ -31,12 +37,8 @@ def blueprint(groups: Sequence[str] = ("force", "displacement"), *,
         Channel groups logged under :data:`viewer.paths.SIGNALS` (one view each).
     window_s : float
         Width of the visible signal window behind the cursor, seconds.
-    timeline : str
-        Timeline selected when the viewer opens.
-    coefficient_names : sequence of str
-        Nonlinear coefficients (one view each); empty gives one view of all of them.
     active_tab : int
-        Tab shown first: 0 Live, 1 Order, 2 Frequency (pair it with ``timeline``).
+        Tab shown first: 0 Live, 1 Order, 2 Frequency (every tab reads on ``acq_time``).
 
     Returns
     -------
@@ -64,36 +66,25 @@ def blueprint(groups: Sequence[str] = ("force", "displacement"), *,
             rrb.TextDocumentView(origin=paths.SUMMARY, name="summary"),
         ),
         column_shares=[3, 2], name="Live")
-    # order and frequency are not "time": show their whole range, wherever the cursor is
-    whole = rrb.TimeAxis(view_range=rrb.TimeRange(start=rrb.TimeRangeBoundary.infinite(),
-                                                  end=rrb.TimeRangeBoundary.infinite()))
 
-    def full(timeline: str) -> list[rrb.VisibleTimeRange]:
-        return [rrb.VisibleTimeRange(timeline, start=rrb.TimeRangeBoundary.infinite(),
-                                     end=rrb.TimeRangeBoundary.infinite())]
+    def figure(origin: str, name: str) -> rrb.Spatial2DView:
+        x_range, y_range = canvas_range(*FIGURE_LAYOUT[origin])
+        return rrb.Spatial2DView(origin=origin, name=name, background=[255, 255, 255],
+                                 visual_bounds=rrb.VisualBounds2D(x_range=x_range,
+                                                                  y_range=y_range))
 
     order = rrb.Horizontal(
-        rrb.TimeSeriesView(origin=paths.STABILISATION, name="stabilisation diagram (Hz)",
-                           time_ranges=full(paths.TIME_ORDER), axis_x=whole),
-        rrb.TimeSeriesView(origin=paths.ORDER, name="information criterion (log10)",
-                           time_ranges=full(paths.TIME_ORDER), axis_x=whole),
+        figure(paths.STABILISATION, "stabilisation diagram"),
+        figure(paths.ORDER, "information criterion"),
         column_shares=[3, 2], name="Order")
-
-    def fview(origin: str, name: str) -> rrb.TimeSeriesView:
-        return rrb.TimeSeriesView(origin=origin, name=name, axis_x=whole,
-                                  time_ranges=full(paths.TIME_FREQUENCY))
-
-    coeff_views = [fview(f"{paths.COEFFICIENTS}/{paths.part(n)}", f"coefficient {n}")
-                   for n in coefficient_names]
-    if not coeff_views:
-        coeff_views = [fview(paths.COEFFICIENTS, "coefficients (Re)")]
     frequency = rrb.Horizontal(
-        rrb.Vertical(fview(paths.FRF, "driving-point FRF (dB)"),
-                     fview(paths.MDI, "MDI per pole (log10)")),
-        rrb.Vertical(*coeff_views), name="Frequency")
+        figure(paths.FRF, "driving-point FRF"),
+        rrb.Vertical(figure(paths.MDI, "MDI per pole"),
+                     figure(paths.COEFFICIENTS, "nonlinear coefficients")),
+        column_shares=[1, 1], name="Frequency")
     return rrb.Blueprint(
         rrb.Tabs(live, order, frequency, active_tab=active_tab),
-        rrb.TimePanel(timeline=timeline),
+        rrb.TimePanel(timeline=paths.TIME_ACQ),
         rrb.SelectionPanel(state="collapsed"),
         collapse_panels=False,
     )

@@ -1,14 +1,15 @@
 """Log fnsi-lab data to Rerun: one ``log_*`` function per entity subtree.
 
 Every function takes an explicit :class:`rerun.RecordingStream` (tests log to a file and
-read it back) and plain arrays or dicts; none of them imports :mod:`ident`. Time-indexed
-data go through ``send_columns`` with exactly one "x" timeline each (see
-:mod:`viewer.paths`), so an entity never shows up against the wrong axis and no implicit
-``log_time``/``log_tick`` index is attached. Styling (names, colours, markers) is static and
-logged once by :func:`log_styles` / :func:`log_signal_styles`.
+read it back) and plain arrays or dicts; none of them imports :mod:`ident`.
 
-Rerun has no logarithmic y axis: FRF magnitudes are logged in dB and MDI values as
-``log10``. Frequencies are logged on the integer ``frequency_mHz`` timeline.
+- Time series (signals, per-update estimates, status) go through ``send_columns`` on the
+  ``acq_time`` timeline (per-update values also on ``update``), the timeline the blueprint
+  selects; no implicit ``log_time``/``log_tick`` index is attached.
+- Data indexed by order or frequency (FRF, stabilisation diagram, information criterion,
+  MDI, coefficients) are static 2D figures (:mod:`viewer.figure`): they show whatever the
+  time cursor, each update replaces them, and every series carries its physical values
+  (``rr.AnyValues``) for export.
 """
 
 from __future__ import annotations
@@ -19,33 +20,48 @@ import numpy as np
 import rerun as rr
 
 from fnsi_lab.viewer import paths
+from fnsi_lab.viewer.figure import Axis, Figure, Panel, Series, stack
 
 # RGB colours, one per series kind (colour-blind-friendly Okabe-Ito palette).
 _BLUE, _ORANGE, _GREEN = (0, 114, 178), (230, 159, 0), (0, 158, 115)
 _RED, _GREY, _PURPLE, _SKY = (213, 94, 0), (140, 140, 140), (204, 121, 167), (86, 180, 233)
+_BLACK, _YELLOW = (40, 40, 40), (240, 228, 66)
 
 #: Colours cycled over the channels of a group (matplotlib's tab10).
 SIGNAL_PALETTE: tuple[tuple[int, int, int], ...] = (
     (31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
     (140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207))
 
-#: pole class -> (colour, marker, legend) of the stabilisation diagram (spec §4 legend).
-POLE_STYLE: dict[str, tuple[tuple[int, int, int], str, str]] = {
-    "new": (_GREY, "Circle", "new pole"),
-    "frequency": (_SKY, "Cross", "stable in frequency"),
-    "damping": (_ORANGE, "Square", "+ damping"),
-    "mode": (_PURPLE, "Diamond", "+ mode shape (MACX)"),
-    "stable": (_GREEN, "Up", "fully stable"),
-    "unstable": (_RED, "Asterisk", "unstable (zeta < 0)"),
+#: pole class -> (colour, legend) of the stabilisation diagram.
+POLE_STYLE: dict[str, tuple[tuple[int, int, int], str]] = {
+    "new": ((185, 185, 185), "new pole"),
+    "frequency": (_SKY, "stable freq."),
+    "damping": (_ORANGE, "+ damping"),
+    "mode": (_PURPLE, "+ MAC"),
+    "stable": (_GREEN, "fully stable"),
+    "unstable": (_RED, "unstable"),
 }
+
+#: FRF series -> (colour, legend).
+FRF_STYLE: dict[str, tuple[tuple[int, int, int], str]] = {
+    "measured": (_BLACK, "measured"),
+    "model": (_ORANGE, "model"),
+    "linear": (_BLUE, "underlying linear"),
+}
+
+#: Canvas of each figure: (rows, plot height) -> ``figure.canvas_range`` for the blueprint.
+#: Tall plots for the Order tab's tall views, two rows for the FRF (magnitude over phase)
+#: and for the coefficients (their panels share the two rows).
+FIGURE_LAYOUT: dict[str, tuple[int, float]] = {
+    paths.STABILISATION: (1, 620.0), paths.ORDER: (1, 620.0), paths.FRF: (2, 380.0),
+    paths.MDI: (1, 300.0), paths.COEFFICIENTS: (2, 300.0)}
+
+#: One colour per estimated coefficient (the full-model curve is a lighter shade).
+COEFFICIENT_PALETTE: tuple[tuple[int, int, int], ...] = (_BLUE, _RED, _GREEN, _PURPLE,
+                                                         _ORANGE, _SKY)
 
 
 # ---------------------------------------------------------------------------- helpers
-def frequency_index(frequency_hz: Any) -> np.ndarray:
-    """Frequencies in Hz -> integer millihertz for the ``frequency_mHz`` timeline."""
-    return np.rint(np.asarray(frequency_hz, dtype=float) * 1000.0).astype(np.int64)
-
-
 def magnitude_db(frf: Any) -> np.ndarray:
     """``20 log10 |H|``, with zeros mapped to -400 dB instead of -inf."""
     mag = np.abs(np.asarray(frf))
@@ -53,104 +69,36 @@ def magnitude_db(frf: Any) -> np.ndarray:
         return np.where(mag > 0, 20.0 * np.log10(np.where(mag > 0, mag, 1.0)), -400.0)
 
 
-def _send_freq(rec: rr.RecordingStream, entity: str, frequency_hz: Any, values: Any) -> None:
-    f = frequency_index(frequency_hz)
-    if len(f) == 0:
-        return
-    v = np.asarray(values, dtype=float).reshape(len(f), -1)
-    rec.send_columns(entity, indexes=[rr.TimeColumn(paths.TIME_FREQUENCY, sequence=f)],
-                     columns=rr.Scalars.columns(scalars=v))
+def phase_deg(frf: Any) -> np.ndarray:
+    """Phase in degrees in (-180, 180], NaN where it wraps (so a line breaks, not jumps)."""
+    ph = np.degrees(np.angle(np.asarray(frf)))
+    out = ph.astype(float).copy()
+    jump = np.flatnonzero(np.abs(np.diff(ph)) > 180.0)
+    out[jump + 1] = np.nan
+    return out
 
 
-def _send_order(rec: rr.RecordingStream, entity: str, order: Any, values: Any) -> None:
-    n = np.asarray(order, dtype=np.int64).ravel()
-    if len(n) == 0:
-        return
-    v = np.asarray(values, dtype=float).reshape(len(n), -1)
-    rec.send_columns(entity, indexes=[rr.TimeColumn(paths.TIME_ORDER, sequence=n)],
-                     columns=rr.Scalars.columns(scalars=v))
+def _lighter(color: tuple[int, int, int], amount: float = 0.55) -> tuple[int, int, int]:
+    return tuple(int(round(c + (255 - c) * amount)) for c in color)  # type: ignore[return-value]
 
 
-# ---------------------------------------------------------------------------- styles
-def _fixed_style(base: str, visible: bool = True, suffix: str = "") -> Any:
-    """Static style of one fixed identification entity (``visible=False`` hides it).
-
-    ``suffix`` is appended to the legend name: the viewer merges legend entries of equal
-    names, so every update's series needs its own.
-    """
-    vis = None if visible else [False]
-    line, point = rr.SeriesLines, rr.SeriesPoints
-    table = {
-        paths.FRF_MEASURED: lambda: line(colors=[_GREY], names=["measured" + suffix], widths=[1.0],
-                                         visible_series=vis),
-        paths.FRF_LINEAR: lambda: line(colors=[_BLUE], names=["underlying linear" + suffix],
-                                       widths=[1.5], visible_series=vis),
-        paths.FRF_MODEL: lambda: line(colors=[_ORANGE], names=["model" + suffix], widths=[1.0],
-                                      visible_series=vis),
-        paths.ORDER_CRITERION: lambda: line(colors=[_BLUE], names=["log10 information criterion" + suffix],
-                                            visible_series=vis),
-        paths.ORDER_SELECTED: lambda: point(colors=[_RED], markers=["Diamond"],
-                                            names=["selected order" + suffix], marker_sizes=[6.0],
-                                            visible_series=vis),
-        paths.MDI_KEPT: lambda: point(colors=[_GREEN], markers=["Circle"],
-                                      names=["log10 MDI, kept" + suffix], marker_sizes=[4.0],
-                                      visible_series=vis),
-        paths.MDI_REMOVED: lambda: point(colors=[_RED], markers=["Cross"],
-                                         names=["log10 MDI, removed" + suffix], marker_sizes=[4.0],
-                                         visible_series=vis),
-        paths.MDI_THRESHOLD: lambda: line(colors=[_GREY], names=["log10 threshold" + suffix],
-                                          visible_series=vis),
-    }
-    return table[base]()
+def _title(what: str, update: int | None) -> str:
+    return what if update is None else f"{what} (update {update})"
 
 
-def _pole_style(pole_class: str, visible: bool = True, suffix: str = "") -> Any:
-    color, marker, name = POLE_STYLE.get(pole_class, (_GREY, "Circle", pole_class))
-    return rr.SeriesPoints(colors=[color], markers=[marker], names=[name + suffix],
-                           marker_sizes=[3.0],
-                           visible_series=None if visible else [False])
+def _robust_range(*arrays: Any) -> np.ndarray:
+    """2nd-98th percentile span of the finite values (a few wild lines do not set the axis)."""
+    v = np.concatenate([np.ravel(np.asarray(a, dtype=float)) for a in arrays if a is not None]
+                       or [np.zeros(0)])
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return v
+    lo, hi = np.percentile(v, [2, 98])
+    span = hi - lo
+    return np.array([lo - 0.1 * span, hi + 0.1 * span])
 
 
-def _coefficient_style(name: str, which: str, visible: bool = True, suffix: str = "") -> Any:
-    color, label = {"full": (_GREY, f"Re {name}, full model"),
-                    "reduced": (_BLUE, f"Re {name}, reduced model"),
-                    "exact": (_RED, f"{name}, exact")}[which]
-    return rr.SeriesLines(colors=[color], names=[label + suffix],
-                          visible_series=None if visible else [False])
-
-
-def _target(rec: rr.RecordingStream, base: str, style: Any, update: int | None) -> str:
-    """Entity for this update's data under ``base``; styles it and hides the previous one.
-
-    ``style(visible, suffix)`` returns the static style archetype. Without ``update`` the
-    data go to ``base`` itself (styled once by :func:`log_styles`).
-    """
-    if update is None:
-        return base
-    entity = paths.versioned(base, update)
-    rec.log(entity, style(True, f" #{update}"), static=True)
-    if update > 1:
-        rec.log(paths.versioned(base, update - 1), style(False, f" #{update - 1}"),
-                static=True)
-    return entity
-
-
-def log_styles(rec: rr.RecordingStream, *, coefficient_names: Sequence[str] = ()) -> None:
-    """Static names, colours and markers of every identification entity (log once)."""
-    for base in (paths.FRF_MEASURED, paths.FRF_LINEAR, paths.FRF_MODEL, paths.ORDER_CRITERION,
-                 paths.ORDER_SELECTED, paths.MDI_KEPT, paths.MDI_REMOVED, paths.MDI_THRESHOLD):
-        rec.log(base, _fixed_style(base), static=True)
-    for cls in POLE_STYLE:
-        rec.log(paths.stabilisation_class(cls), _pole_style(cls), static=True)
-    for name in coefficient_names:
-        _coefficient_styles(rec, name)
-
-
-def _coefficient_styles(rec: rr.RecordingStream, name: str) -> None:
-    for which in ("full", "reduced", "exact"):
-        rec.log(paths.coefficient(name, which), _coefficient_style(name, which), static=True)
-
-
+# ---------------------------------------------------------------------------- signals
 def log_signal_styles(rec: rr.RecordingStream, groups: Mapping[str, Sequence[int]],
                       channel_names: Sequence[str]) -> None:
     """Static series names and colours of each channel group (one legend entry per channel)."""
@@ -161,7 +109,6 @@ def log_signal_styles(rec: rr.RecordingStream, groups: Mapping[str, Sequence[int
                                        for i in range(len(cols))]), static=True)
 
 
-# ---------------------------------------------------------------------------- signals
 def channel_groups(channel_names: Sequence[str], quantities: Sequence[str]) -> dict[str, list[int]]:
     """Default grouping: one group per physical quantity (``force``, ``displacement``...).
 
@@ -206,10 +153,23 @@ def log_signals(rec: rr.RecordingStream, data: np.ndarray, t0_s: float, sample_r
                          columns=rr.Scalars.columns(scalars=rows[:, list(cols)].astype(float)))
 
 
+# ---------------------------------------------------------------------------- styles
+def log_styles(rec: rr.RecordingStream, **_: Any) -> None:
+    """Kept for callers of the former API: figures carry their own styles (no-op)."""
+
+
+def _series_style(rec: rr.RecordingStream, entity: str, name: str,
+                  color: tuple[int, int, int]) -> None:
+    # lines AND points: a series of one update (one value) is already visible
+    rec.log(entity, rr.SeriesLines(names=[name], colors=[color], widths=[1.5]),
+            rr.SeriesPoints(names=[name], colors=[color], markers=["Circle"],
+                            marker_sizes=[3.0]), static=True)
+
+
 # ---------------------------------------------------------------------------- identification
 def log_frf(rec: rr.RecordingStream, frequency_hz: Any, *, measured: Any = None,
             linear: Any = None, model: Any = None, update: int | None = None) -> None:
-    """Driving-point FRF magnitudes in dB against frequency.
+    """Driving-point FRF against frequency: magnitude (dB) and phase (deg) panels.
 
     Parameters
     ----------
@@ -218,19 +178,35 @@ def log_frf(rec: rr.RecordingStream, frequency_hz: Any, *, measured: Any = None,
         Measured FRF (output spectrum over force spectrum), synthesised underlying linear
         FRF, and the identified model's FRF at the same lines.
     update : int, optional
-        Identification update: data go to ``<entity>/update_<k>`` and the previous update's
-        curves are hidden (see :func:`viewer.paths.versioned`).
+        Identification update (shown in the title).
     """
-    for entity, frf in ((paths.FRF_MEASURED, measured), (paths.FRF_LINEAR, linear),
-                        (paths.FRF_MODEL, model)):
-        if frf is not None:
-            target = _target(rec, entity, lambda v, x, e=entity: _fixed_style(e, v, x), update)
-            _send_freq(rec, target, frequency_hz, magnitude_db(frf))
+    f = np.asarray(frequency_hz, dtype=float).ravel()
+    curves = {k: np.asarray(v).ravel() for k, v in
+              (("measured", measured), ("model", model), ("linear", linear)) if v is not None}
+    mags = {k: magnitude_db(v) for k, v in curves.items()}
+    phases = {k: phase_deg(v) for k, v in curves.items()}
+    fx = Axis.fit("frequency (Hz)", f, pad=0.0)
+    mag_panel = Panel("magnitude", _title("driving-point FRF magnitude (dB)", update), fx,
+                      Axis.fit("magnitude (dB)", _robust_range(*mags.values())))
+    ph_panel = Panel("phase", "driving-point FRF phase (deg)", fx,
+                     Axis("phase (deg)", -190.0, 190.0))
+    for key in ("model", "linear", "measured"):  # measured dots on top of the lines
+        if key not in curves:
+            continue
+        h = curves[key]
+        color, name = FRF_STYLE[key]
+        kind, width = ("points", 1.3) if key == "measured" else ("line", 1.5)
+        values = {"frequency_hz": f, "re": h.real, "im": h.imag}
+        mag_panel.series.append(Series(key, name, f, mags[key], color, kind=kind, width=width,
+                                       values=values))
+        ph_panel.series.append(Series(key, name, f, phases[key], color, kind=kind, width=width))
+    Figure(rec, paths.FRF).log(stack([mag_panel, ph_panel], *FIGURE_LAYOUT[paths.FRF]))
 
 
 def log_stabilisation(rec: rr.RecordingStream, order: Any, frequency_hz: Any,
-                      pole_class: Sequence[str], *, update: int | None = None) -> None:
-    """Stabilisation diagram: pole frequency against model order, one entity per class.
+                      pole_class: Sequence[str], *, damping_ratio: Any = None,
+                      selected_order: int | None = None, update: int | None = None) -> None:
+    """Stabilisation diagram: pole frequency against model order, one series per class.
 
     Parameters
     ----------
@@ -240,97 +216,116 @@ def log_stabilisation(rec: rr.RecordingStream, order: Any, frequency_hz: Any,
         Natural frequency of each pole.
     pole_class : sequence of str, length n_poles
         One of :data:`viewer.paths.POLE_CLASSES` per pole.
+    damping_ratio : array_like, shape (n_poles,), optional
+        Stored with the poles for export.
+    selected_order : int, optional
+        Drawn as a vertical line.
     update : int, optional
-        See :func:`log_frf`.
+        Identification update (shown in the title).
     """
     order = np.asarray(order, dtype=np.int64).ravel()
     freq = np.asarray(frequency_hz, dtype=float).ravel()
     cls = np.asarray(pole_class, dtype=str).ravel()
-    present = set(cls.tolist())
-    for name in list(POLE_STYLE) + sorted(present - set(POLE_STYLE)):
-        base = paths.stabilisation_class(name)
-        if name not in present:  # hide a class this update no longer has
-            if update is not None and update > 1:
-                rec.log(paths.versioned(base, update - 1),
-                        _pole_style(name, False, f" #{update - 1}"), static=True)
-            continue
+    zeta = None if damping_ratio is None else np.asarray(damping_ratio, dtype=float).ravel()
+    panel = Panel("", _title("stabilisation diagram: pole frequency (Hz)", update),
+                  Axis.fit("model order", order, pad=0.03),
+                  Axis.fit("frequency (Hz)", freq, include=[0.0], pad=0.02))
+    names = list(POLE_STYLE) + sorted(set(cls.tolist()) - set(POLE_STYLE))
+    for name in names:
         sel = cls == name
-        idx = np.argsort(order[sel], kind="stable")
-        target = _target(rec, base, lambda v, x, n=name: _pole_style(n, v, x), update)
-        # one row per pole: several rows may share an order (one series, many points)
-        _send_order(rec, target, order[sel][idx], freq[sel][idx])
+        color, label = POLE_STYLE.get(name, (_GREY, name))
+        values = {"order": order[sel], "frequency_hz": freq[sel]}
+        if zeta is not None:
+            values["damping_ratio"] = zeta[sel]
+        # every class is logged, empty ones too: a class an update no longer has is emptied
+        panel.series.append(Series(paths.part(name), f"{label} ({int(sel.sum())})",
+                                   order[sel], freq[sel], color, kind="points",
+                                   width=2.0 if name == "new" else 2.5,
+                                   legend=bool(sel.any()), values=values))
+    if selected_order is not None:
+        panel.vlines.append((float(selected_order), f"selected order {selected_order}", _RED))
+    Figure(rec, paths.STABILISATION).log(stack([panel], *FIGURE_LAYOUT[paths.STABILISATION]))
 
 
 def log_information_criterion(rec: rr.RecordingStream, orders: Any, criterion: Any,
                               selected_order: int | None, *, update: int | None = None) -> None:
-    """log10 of the information criterion against model order, the selected order marked.
+    """Information criterion against model order (log axis), the selected order marked.
 
     Parameters
     ----------
     orders : array_like of int, shape (n_orders,)
     criterion : array_like, shape (n_orders,)
         Criterion value ``I(n) > 0`` at each order (non-finite or non-positive values, e.g.
-        the ``inf`` of unstable orders, are skipped). Logged as ``log10 I(n)``: the
-        criterion spans decades.
+        the ``inf`` of unstable orders, are not drawn).
     selected_order : int or None
-        The chosen order (one point on the curve).
+        The chosen order.
     update : int, optional
-        See :func:`log_frf`.
+        Identification update (shown in the title).
     """
     orders = np.asarray(orders, dtype=np.int64).ravel()
-    raw = np.asarray(criterion, dtype=float).ravel()
-    with np.errstate(divide="ignore", invalid="ignore"):
-        crit = np.where(raw > 0, np.log10(np.where(raw > 0, raw, 1.0)), np.nan)
-    ok = np.isfinite(crit)
-    target = _target(rec, paths.ORDER_CRITERION,
-                     lambda v, x: _fixed_style(paths.ORDER_CRITERION, v, x), update)
-    _send_order(rec, target, orders[ok], crit[ok])
-    target = _target(rec, paths.ORDER_SELECTED,
-                     lambda v, x: _fixed_style(paths.ORDER_SELECTED, v, x), update)
+    crit = np.asarray(criterion, dtype=float).ravel()
+    ok = np.isfinite(crit) & (crit > 0)
+    panel = Panel("", _title("information criterion I(n)", update),
+                  Axis.fit("model order", orders, pad=0.03),
+                  Axis.fit("criterion I(n)", crit[ok], log=True))
+    values = {"order": orders, "criterion": crit}
+    panel.series.append(Series("criterion", "I(n)", orders[ok], crit[ok],
+                               _BLUE, width=1.5, values=values))
+    panel.series.append(Series("criterion_points", "", orders[ok], crit[ok], _BLUE,
+                               kind="points", width=2.0, legend=False))
+    sel_x, sel_y = np.zeros(0), np.zeros(0)
     if selected_order is not None:
         hit = np.flatnonzero((orders == int(selected_order)) & ok)
         if hit.size:
-            _send_order(rec, target, [int(selected_order)], [crit[hit[0]]])
+            sel_x, sel_y = orders[hit[:1]], crit[hit[:1]]
+        panel.vlines.append((float(selected_order), f"selected order {selected_order}", _RED))
+    panel.series.append(Series("selected", "selected order", sel_x, sel_y, _RED,
+                               kind="points", width=5.0,
+                               values={"order": sel_x, "criterion": sel_y}))
+    Figure(rec, paths.ORDER).log(stack([panel], *FIGURE_LAYOUT[paths.ORDER]))
 
 
 def log_mdi(rec: rr.RecordingStream, frequency_hz: Any, mdi: Any, kept: Any,
             threshold: float | None, *, update: int | None = None) -> None:
-    """MDI per pole (log10) against pole frequency, kept and removed poles apart.
+    """Modal dominancy index per pole (log axis) against pole frequency.
 
     Parameters
     ----------
     frequency_hz : array_like, shape (n_poles,)
     mdi : array_like, shape (n_poles,)
-        Modal distribution index of each pole (> 0).
+        Modal dominancy index of each pole (> 0).
     kept : array_like of bool, shape (n_poles,)
         True for poles kept by the reduction.
     threshold : float or None
-        The MDI threshold; drawn as a horizontal line over the poles' frequency span.
+        The MDI threshold, drawn as a horizontal line.
     update : int, optional
-        See :func:`log_frf`.
+        Identification update (shown in the title).
     """
     freq = np.asarray(frequency_hz, dtype=float).ravel()
-    val = np.log10(np.maximum(np.asarray(mdi, dtype=float).ravel(), 1e-300))
+    val = np.asarray(mdi, dtype=float).ravel()
     kept = np.asarray(kept, dtype=bool).ravel()
-    for entity, sel in ((paths.MDI_KEPT, kept), (paths.MDI_REMOVED, ~kept)):
-        idx = np.argsort(freq[sel], kind="stable")
-        target = _target(rec, entity, lambda v, x, e=entity: _fixed_style(e, v, x), update)
-        _send_freq(rec, target, freq[sel][idx], val[sel][idx])
-    target = _target(rec, paths.MDI_THRESHOLD,
-                     lambda v, x: _fixed_style(paths.MDI_THRESHOLD, v, x), update)
-    if threshold is not None and threshold > 0 and freq.size:
-        span = [float(freq.min()), float(freq.max())]
-        if span[1] == span[0]:
-            span[1] = span[0] + 1.0
-        _send_freq(rec, target, span, [np.log10(threshold)] * 2)
+    thr = [threshold] if threshold is not None and threshold > 0 else []
+    fx = Axis.fit("pole frequency (Hz)", freq, include=[0.0])
+    panel = Panel("", _title("modal dominancy index (MDI) per pole", update), fx,
+                  Axis.fit("MDI", val, log=True, include=thr))
+    for key, sel, color, label in (("kept", kept, _GREEN, "physical"),
+                                   ("removed", ~kept, _RED, "spurious")):
+        panel.series.append(Series(key, f"{label} ({int(sel.sum())})", freq[sel], val[sel],
+                                   color, kind="points", width=3.5,
+                                   values={"frequency_hz": freq[sel], "mdi": val[sel]}))
+    tx = np.array([fx.lo, fx.hi]) if thr else np.zeros(0)
+    panel.series.append(Series("threshold", f"threshold {threshold:.3g}" if thr else "threshold",
+                               tx, np.array(thr * 2), _GREY, width=1.2, legend=bool(thr),
+                               values={"threshold": np.array(thr)}))
+    Figure(rec, paths.MDI).log(stack([panel], *FIGURE_LAYOUT[paths.MDI]))
 
 
 def log_coefficients(rec: rr.RecordingStream, frequency_hz: Any,
                      full: Mapping[str, Any] | None = None,
                      reduced: Mapping[str, Any] | None = None,
-                     exact: Mapping[str, float] | None = None, *,
+                     exact: Mapping[str, float] | None = None, *, excited: Any = None,
                      update: int | None = None) -> None:
-    """Real part of each nonlinear coefficient c_a(f), before and after reduction.
+    """Real part of each estimated nonlinear coefficient c_a(f), one panel each.
 
     Parameters
     ----------
@@ -338,20 +333,44 @@ def log_coefficients(rec: rr.RecordingStream, frequency_hz: Any,
     full, reduced : mapping of str to complex array_like, shape (n_lines,), optional
         Coefficient name -> c_a at each line, from the full and the reduced model.
     exact : mapping of str to float, optional
-        Known values (simulations): drawn as a constant line over the band.
+        Known values (simulations): drawn for the estimated coefficients only.
+    excited : array_like of bool, shape (n_lines,), optional
+        Excited lines: they set the y range (above the excitation band the identified
+        coefficients are extrapolations and may swing far off).
     update : int, optional
-        See :func:`log_frf` (the exact value stays in one entity).
+        Identification update (shown in the titles).
     """
     freq = np.asarray(frequency_hz, dtype=float).ravel()
-    for which, table in (("full", full), ("reduced", reduced)):
-        for name, values in (table or {}).items():
-            target = _target(rec, paths.coefficient(name, which),
-                             lambda v, x, n=name, w=which: _coefficient_style(n, w, v, x), update)
-            _send_freq(rec, target, freq, np.real(np.asarray(values)).ravel())
-    if freq.size:
-        for name, value in (exact or {}).items():
-            _send_freq(rec, paths.coefficient(name, "exact"), [freq.min(), freq.max()],
-                       [float(value)] * 2)
+    full, reduced, exact = dict(full or {}), dict(reduced or {}), dict(exact or {})
+    band = np.ones(freq.size, bool) if excited is None else np.asarray(excited, bool).ravel()
+    if band.size != freq.size or not band.any():
+        band = np.ones(freq.size, bool)
+    names = list(dict.fromkeys(list(reduced) + list(full)))
+    panels = []
+    for k, name in enumerate(names):
+        color = COEFFICIENT_PALETTE[k % len(COEFFICIENT_PALETTE)]
+        est = {w: np.asarray(t[name]).ravel() for w, t in (("full", full), ("reduced", reduced))
+               if name in t}
+        known = exact.get(name)
+        inc = [float(known)] if known is not None else []
+        panel = Panel(paths.part(name), _title(f"Re {name}", update),
+                      Axis.fit("frequency (Hz)", freq, pad=0.0),
+                      Axis.fit(f"Re {name}",
+                               _robust_range(*[c.real[band] for c in est.values()]),
+                               include=inc, pad=0.3))
+        for which, c in est.items():
+            shade = _lighter(color) if which == "full" and "reduced" in est else color
+            panel.series.append(Series(which, f"{which} model", freq, c.real,
+                                       shade, width=1.2 if which == "full" else 1.6,
+                                       values={"frequency_hz": freq, "re": c.real,
+                                               "im": c.imag}))
+        if known is not None:
+            span = [freq.min(), freq.max()] if freq.size else []
+            panel.series.append(Series("exact", f"exact {float(known):.4g}", np.array(span),
+                                       np.full(len(span), float(known)), _BLACK, width=1.0,
+                                       values={"exact": np.array([float(known)])}))
+        panels.append(panel)
+    Figure(rec, paths.COEFFICIENTS).log(stack(panels, *FIGURE_LAYOUT[paths.COEFFICIENTS]))
 
 
 def log_convergence(rec: rr.RecordingStream, update: int, acq_time_s: float,
@@ -366,23 +385,33 @@ def log_convergence(rec: rr.RecordingStream, update: int, acq_time_s: float,
     acq_time_s : float
         Acquisition time of the end of the data used.
     values : mapping of str to float or array_like
-        Quantity -> value(s), e.g. ``natural_frequency_hz`` -> one value per kept mode.
-        A vector is one row (series ``name[i]``); its length may change between updates.
+        Quantity -> value(s). A vector holds one value per mode (ascending frequency):
+        each mode gets its own series, named after ``natural_frequency_hz`` when given
+        (``mode 3 (28.3 Hz)``); its length may change between updates.
     coefficients : mapping of str to float, optional
         Coefficient name -> headline estimate (e.g. mean Re c_a over the excited lines),
         one entity each under :data:`viewer.paths.CONVERGENCE_COEFFICIENTS`.
     """
     index = [rr.TimeColumn(paths.TIME_UPDATE, sequence=[int(update)]),
              rr.TimeColumn(paths.TIME_ACQ, duration=[float(acq_time_s)])]
-    for name, value in values.items():
-        v = np.atleast_1d(np.asarray(value, dtype=float)).reshape(1, -1)
-        if v.size == 0:
+    freqs = np.atleast_1d(np.asarray(values.get("natural_frequency_hz", []), dtype=float))
+
+    def send(entity: str, value: float, name: str, color: tuple[int, int, int]) -> None:
+        _series_style(rec, entity, name, color)
+        rec.send_columns(entity, indexes=index, columns=rr.Scalars.columns(scalars=[value]))
+
+    for quantity, value in values.items():
+        v = np.atleast_1d(np.asarray(value, dtype=float)).ravel()
+        if v.size == 1 and quantity not in ("natural_frequency_hz", "damping_ratio"):
+            send(paths.convergence(quantity), float(v[0]), quantity.replace("_", " "), _BLUE)
             continue
-        rec.send_columns(paths.convergence(name), indexes=index,
-                         columns=rr.Scalars.columns(scalars=v))
-    for name, value in (coefficients or {}).items():
-        rec.send_columns(paths.convergence_coefficient(name), indexes=index,
-                         columns=rr.Scalars.columns(scalars=[float(value)]))
+        for i, x in enumerate(v):
+            label = f"mode {i + 1}" + (f" ({freqs[i]:.1f} Hz)" if i < freqs.size else "")
+            send(paths.convergence_mode(quantity, i + 1), float(x), label,
+                 SIGNAL_PALETTE[i % len(SIGNAL_PALETTE)])
+    for k, (name, value) in enumerate((coefficients or {}).items()):
+        send(paths.convergence_coefficient(name), float(value), f"{name} (mean Re)",
+             COEFFICIENT_PALETTE[k % len(COEFFICIENT_PALETTE)])
 
 
 def log_summary(rec: rr.RecordingStream, markdown: str) -> None:
@@ -411,11 +440,15 @@ def _fmt(value: Any) -> str:
 
 def log_status(rec: rr.RecordingStream, acq_time_s: float, values: Mapping[str, float],
                message: str | None = None, *, level: str = "INFO") -> None:
-    """Status scalars (rate, dropped blocks, file size...) and an optional log line."""
+    """Status scalars (updates, latency, dropped blocks...) and an optional log line.
+
+    Each scalar is drawn with lines and points, so the first value is already visible.
+    """
     index = [rr.TimeColumn(paths.TIME_ACQ, duration=[float(acq_time_s)])]
-    for name, value in values.items():
-        rec.send_columns(paths.status(name), indexes=index,
-                         columns=rr.Scalars.columns(scalars=[float(value)]))
+    for k, (name, value) in enumerate(values.items()):
+        entity = paths.status(name)
+        _series_style(rec, entity, name.replace("_", " "), SIGNAL_PALETTE[k % len(SIGNAL_PALETTE)])
+        rec.send_columns(entity, indexes=index, columns=rr.Scalars.columns(scalars=[float(value)]))
     if message:
         rec.send_columns(paths.STATUS_LOG, indexes=index,
                          columns=rr.TextLog.columns(text=[message], level=[level]))
@@ -432,25 +465,23 @@ def log_identification(rec: rr.RecordingStream, view: Mapping[str, Any], *,
         ``frf`` (:func:`log_frf`, with ``frequency_hz``), ``stabilisation``,
         ``criterion`` (:func:`log_information_criterion`), ``mdi``, ``coefficients``,
         ``convergence`` (with ``update``, ``acq_time_s``, ``values``), and ``summary``
-        (markdown text).
+        (markdown text). The stabilisation diagram marks the criterion's selected order.
     update : int, optional
-        Identification update: order- and frequency-indexed data go to one child entity per
-        update and the previous one is hidden (see :func:`viewer.paths.versioned`).
+        Identification update, shown in the figure titles (each update replaces the
+        figures; the per-update estimates stay on the ``update`` timeline).
     """
     if "frf" in view:
         log_frf(rec, **view["frf"], update=update)
     if "stabilisation" in view:
-        log_stabilisation(rec, **view["stabilisation"], update=update)
+        stab = dict(view["stabilisation"])
+        if "criterion" in view:
+            stab.setdefault("selected_order", view["criterion"].get("selected_order"))
+        log_stabilisation(rec, **stab, update=update)
     if "criterion" in view:
         log_information_criterion(rec, **view["criterion"], update=update)
     if "mdi" in view:
         log_mdi(rec, **view["mdi"], update=update)
     if "coefficients" in view:
-        names = set()
-        for key in ("full", "reduced", "exact"):
-            names |= set((view["coefficients"].get(key) or {}))
-        for name in sorted(names):
-            _coefficient_styles(rec, name)
         log_coefficients(rec, **view["coefficients"], update=update)
     if "convergence" in view:
         log_convergence(rec, **view["convergence"])
