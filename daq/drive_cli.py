@@ -13,7 +13,7 @@ def _excitation(args: argparse.Namespace) -> int:
     from fnsi_lab.outputs import check_output_path
 
     out = check_output_path(args.out, force=args.force, option="--out")
-    side = check_output_path(sidecar_path(out), force=args.force, option="sidecar")
+    side = check_output_path(sidecar_path(out), force=args.force, option="--out's sidecar")
     config = load_experiment(args.config)
     if config.excitation is None:
         raise config.error("excitation", "the experiment has no excitation to export",

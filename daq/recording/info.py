@@ -31,7 +31,9 @@ def recording_info(path: str | os.PathLike[str]) -> dict[str, Any]:
         ``messages`` (all topics), ``blocks``, ``lost_blocks`` (gaps in the block
         sequence), ``topics`` {topic: count}, ``chunks``, ``events`` {kind: count},
         ``excitation``, ``experiment``, ``truth``, ``source``, ``attachments``
-        [{name, media_type, size}], ``metadata_keys``, ``software_version``, ``library``.
+        [{name, media_type, size}], ``metadata_keys``, ``software_version``, ``library``,
+        ``trigger`` (software trigger settings or None), ``clock_check``
+        (:meth:`daq.periodicity.ClockCheck.to_dict`, None without periods).
 
     Raises
     ------
@@ -85,8 +87,21 @@ def recording_info(path: str | os.PathLike[str]) -> dict[str, Any]:
             "metadata_keys": sorted(rec.metadata),
             "software_version": rec.experiment.get(topics.SOFTWARE_VERSION_KEY),
             "library": header.library,
+            "trigger": rec.metadata.get("trigger"),
+            "clock_check": _clock_check(rec) if n else None,
         }
     return info
+
+
+def _clock_check(rec: Any) -> dict[str, Any] | None:
+    """Drive vs acquisition clock (daq.periodicity); None when periods cannot be cut."""
+    from fnsi_lab.daq.periodicity import check_record_clock
+    from fnsi_lab.daq.recording.errors import RecordingError
+
+    try:
+        return check_record_clock(rec.read_periodic()).to_dict()
+    except RecordingError:  # lost blocks, shorter than a period: reported elsewhere
+        return None
 
 
 def _fmt_bytes(n: int) -> str:
@@ -122,6 +137,18 @@ def format_info(info: dict[str, Any]) -> str:
                      + (f", rms {exc['rms']:g}" if exc.get("rms") is not None else "")
                      + (f", phases {exc['phases']}" if exc.get("phases") else "")
                      + (f", seed {exc['seed']}" if "seed" in exc else ""))
+        drive = exc.get("drive")
+        if drive:
+            lines.append(f"drive: {exc.get('drive_file') or drive.get('file', {}).get('name', '?')}, "
+                         f"{len(drive.get('excited_lines', []))} lines, unit "
+                         f"{drive.get('scaling', {}).get('unit')}, sha256 "
+                         f"{str(drive.get('signal_sha256'))[:12]}...")
+    trig = info.get("trigger")
+    if trig:
+        lines.append(f"trigger: {trig['channel']} {trig['slope']} through {trig['level']:g}, "
+                     f"{trig['pre_samples']} pre-trigger samples")
+    if info.get("clock_check"):
+        lines.append(info["clock_check"]["message"])
     lines.append(f"channels ({info['n_inputs']} inputs, {info['n_outputs']} outputs):")
     for c in info["channels"]:
         role = "in " if c["quantity"] == "force" else "out"

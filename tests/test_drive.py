@@ -1,0 +1,170 @@
+"""fnsi-lab excitation: exported drives read back with third-party readers (scipy, npTDMS)."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import wave
+from pathlib import Path
+
+import numpy as np
+import pytest
+from nptdms import TdmsFile
+from scipy.io import wavfile
+
+from fnsi_lab.cli import main
+from fnsi_lab.daq.config import load_experiment, parse_experiment
+from fnsi_lab.daq.drive import (design_drive, load_drive_definition, off_line_power_db,
+                                read_drive)
+from fnsi_lab.daq.multisine import multisine
+from fnsi_lab.daq.acquisition import record_experiment
+from fnsi_lab.daq.recording.reader import read_periodic
+from fnsi_lab.errors import ConfigError
+
+K = 0.01  # V/N
+
+
+def smallsat_drive() -> np.ndarray:
+    """The default experiment's force (what the simulator feeds the model), in volts."""
+    ex = load_experiment(None).excitation
+    ms = multisine(ex.samples_per_period, 1000.0, ex.band_hz, ex.rms, n_periods=ex.periods,
+                   n_realizations=ex.realizations, seed=ex.seed, phases=ex.phases)
+    return ms.signal.reshape(-1) * K, ms.excited_lines
+
+
+def assert_periodic_and_clean(x: np.ndarray, n: int, lines: np.ndarray) -> None:
+    periods = x.reshape(-1, n)
+    assert np.all(periods == periods[0])                  # periodic to the last bit
+    assert off_line_power_db(x, n, lines) < -120.0        # target: < -120 dB off the lines
+
+
+def export(tmp_path: Path, name: str, *extra: str) -> tuple[Path, dict]:
+    out = tmp_path / name
+    assert main(["excitation", "--out", str(out), "--volts-per-newton", str(K), "--quiet",
+                 *extra]) == 0
+    return out, json.loads(out.with_suffix(".json").read_text())
+
+
+def test_wav_float32_reads_back_as_designed(tmp_path: Path) -> None:
+    designed, lines = smallsat_drive()
+    out, side = export(tmp_path, "drive.wav")
+    rate, raw = wavfile.read(out)
+    assert rate == 1000 and raw.dtype == np.float32 and raw.shape == designed.shape
+    full_scale = side["file"]["full_scale"]
+    assert full_scale == pytest.approx(np.max(np.abs(designed)), rel=1e-15)
+    volts = raw.astype(np.float64) * full_scale
+    # float32 keeps 24 bits of mantissa: 2**-24 of full scale at worst
+    assert np.max(np.abs(volts - designed)) <= 2.0 ** -24 * full_scale
+    assert np.max(np.abs(raw)) == 1.0
+    assert_periodic_and_clean(volts, 8192, lines)
+    assert side["file"]["encoding"] == "float32" and side["scaling"]["unit"] == "V"
+    assert side["file"]["sha256"] == hashlib.sha256(out.read_bytes()).hexdigest()
+
+
+def test_wav_pcm24_reads_back_within_one_code(tmp_path: Path) -> None:
+    designed, lines = smallsat_drive()
+    out, side = export(tmp_path, "drive24.wav", "--wav-encoding", "pcm24", "--full-scale", "5")
+    with wave.open(str(out)) as w:
+        assert (w.getsampwidth(), w.getnchannels(), w.getframerate()) == (3, 1, 1000)
+    rate, raw = wavfile.read(out)  # scipy: 24-bit left-aligned in int32
+    codes = raw.astype(np.int64) >> 8
+    volts = codes / (2 ** 23 - 1) * side["file"]["full_scale"]
+    assert side["file"]["full_scale"] == 5.0
+    assert np.max(np.abs(volts - designed)) <= 0.5 * 5.0 / (2 ** 23 - 1) * (1 + 1e-9)
+    assert_periodic_and_clean(volts, 8192, lines)
+    np.testing.assert_array_equal(read_drive(out), volts)  # our reader agrees with scipy
+
+
+def test_tdms_csv_npy_read_back_exactly(tmp_path: Path) -> None:
+    designed, lines = smallsat_drive()
+    out, side = export(tmp_path, "drive.tdms")
+    tdms = TdmsFile.read(out)
+    channel = tdms["drive"]["drive"]
+    np.testing.assert_array_equal(channel[:], designed)  # float64: bit for bit
+    assert channel.properties["wf_increment"] == pytest.approx(1e-3)
+    assert channel.properties["unit_string"] == "V"
+    assert_periodic_and_clean(channel[:], 8192, lines)
+    for name in ("as_text.csv", "as_array.npy"):  # one sidecar per stem
+        out, _ = export(tmp_path, name)
+        np.testing.assert_array_equal(read_drive(out), designed)
+
+
+def test_sidecar_definition_and_periods_option(tmp_path: Path) -> None:
+    out, side = export(tmp_path, "loop.npy", "--periods", "2")
+    x = np.load(out)
+    assert x.shape == (2 * 8192,)
+    assert side["periods"] == 2 and side["samples_per_period"] == 8192
+    assert side["multisine"]["seed"] == 0 and side["scaling"]["volts_per_newton"] == K
+    lines = np.array(side["excited_lines"])
+    # the stated lines, amplitudes and phases rebuild the file (a generator could do it)
+    n = np.arange(8192)
+    rebuilt = np.zeros(8192)
+    for k, a, phi in zip(lines, side["amplitudes"], side["phases_rad"][0]):
+        rebuilt += a * np.cos(2 * np.pi * k * n / 8192 + phi)
+    np.testing.assert_allclose(rebuilt, x[:8192], atol=1e-12 * np.max(np.abs(x)))
+    assert side["scaling"]["rms"] == pytest.approx(np.sqrt(np.mean(x ** 2)), rel=1e-12)
+    definition = load_drive_definition(out.with_suffix(".json"))
+    assert definition.signal_sha256 == side["signal_sha256"]
+
+
+def test_edited_sidecar_refused(tmp_path: Path) -> None:
+    out, side = export(tmp_path, "d.npy")
+    side["phases_rad"][0][3] += 0.1
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps(side))
+    with pytest.raises(ConfigError, match="do not reproduce"):
+        load_drive_definition(bad)
+
+
+def test_refuses_to_overwrite_and_unknown_format(tmp_path: Path, capsys) -> None:
+    out, _ = export(tmp_path, "d.csv")
+    before = out.read_bytes()
+    assert main(["excitation", "--out", str(out), "--quiet"]) == 2
+    assert out.read_bytes() == before
+    assert "--force" in capsys.readouterr().err
+    assert main(["excitation", "--out", str(out), "--quiet", "--force"]) == 0
+    assert main(["excitation", "--out", str(tmp_path / "d.mp3"), "--quiet"]) == 2
+
+
+def test_excitation_file_reaches_the_recording_and_ident_input(tmp_path: Path) -> None:
+    """A source that knows nothing of the multisine still records its lines and period."""
+    from fnsi_lab.daq.registry import make_source
+    from fnsi_lab.daq.sources.array_source import ArraySource
+    from fnsi_lab.inputs import load_input
+
+    # the lumped experiment's drive, exported as a lab would
+    assert main(["excitation", "--config", "lumped.yaml", "--out", str(tmp_path / "d.npy"),
+                 "--quiet"]) == 0
+    exp = {"name": "rig", "sample_rate_hz": 1000,
+           "source": {"kind": "simulated", "options": {"model": "lumped"}},
+           "excitation": {"file": "d.json"}}  # relative to the experiment file
+    config = parse_experiment(exp, file=str(tmp_path / "rig.yaml"))
+    assert config.excitation.samples_per_period == 4096
+    sim = load_experiment("lumped.yaml")
+    with make_source(sim) as src:
+        data = np.concatenate([b.data for b in src if b.realization == 0])
+        channels = src.channels
+    # a "hardware" source: plain rows, no excitation of its own
+    hw = ArraySource(data, channels, 1000.0, block_size=256)
+    out = tmp_path / "rig.mcap"
+    record_experiment(config, out, source=hw)
+    rec = read_periodic(out)
+    drive = load_drive_definition(tmp_path / "d.json")
+    assert rec.samples_per_period == 4096
+    np.testing.assert_array_equal(rec.excited_lines, drive.excited_lines)
+    assert rec.excitation["drive"]["signal_sha256"] == drive.signal_sha256
+    assert rec.excitation["drive"]["phases_rad"] == drive.phases_rad.tolist()
+    inp = load_input(out)  # what `fnsi-lab ident` reads: period and lines without guessing
+    assert inp.samples_per_period == 4096
+    np.testing.assert_array_equal(inp.excited_lines, drive.excited_lines)
+    assert inp.transient_periods == drive.excitation.transient_periods
+
+
+def test_drive_for_another_sample_rate_refused(tmp_path: Path) -> None:
+    assert main(["excitation", "--out", str(tmp_path / "d.npy"), "--quiet"]) == 0
+    exp = {"name": "rig", "sample_rate_hz": 2000,
+           "source": {"kind": "simulated", "options": {"model": "lumped"}},
+           "excitation": {"file": str(tmp_path / "d.json")}}
+    with pytest.raises(ConfigError, match="made for 1000 Hz") as err:
+        parse_experiment(exp, file="rig.yaml")
+    assert "excitation.file" in str(err.value)
