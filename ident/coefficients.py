@@ -221,11 +221,13 @@ def nonlinear_coefficients(model: StateSpaceModel, data: FrequencyData | None,
         excited = np.ones(f.size, bool)
         if data is not None and f.size == data.n_lines and np.allclose(f, data.frequencies_hz):
             excited = np.asarray(data.excited, bool)
-    H = transfer_at_lines(model, f)  # (F, p, m_e)
+    # only the channels of the driving points and of L_a (2 of hundreds on a dense array)
+    used = np.union1d([r for _, r in pairs], np.flatnonzero(np.any(L != 0, axis=1))).astype(int)
+    H = transfer_at_lines(model, f, rows=used)  # (F, len(used), m_e)
     cols = [c for c, _ in pairs]
-    rows = [r for _, r in pairs]
+    rows = [int(np.searchsorted(used, r)) for _, r in pairs]
     num = H[:, rows, m:]  # (F, n_drive, s)
-    den = np.einsum("fdi,ds->fis", H[:, :, cols], L)  # (F, n_drive, s)
+    den = np.einsum("fdi,ds->fis", H[:, :, cols], L[used])  # (F, n_drive, s)
     with np.errstate(invalid="ignore", divide="ignore"):
         values = -np.sum(den.conj() * num, axis=1) / np.sum(np.abs(den) ** 2, axis=1)
     truth = []
@@ -236,13 +238,16 @@ def nonlinear_coefficients(model: StateSpaceModel, data: FrequencyData | None,
                               denominator=den, excited=excited, truth=tuple(truth))
 
 
-def transfer_at_lines(model: StateSpaceModel, frequencies_hz: np.ndarray) -> np.ndarray:
+def transfer_at_lines(model: StateSpaceModel, frequencies_hz: np.ndarray,
+                      rows=None) -> np.ndarray:
     """The identified discrete-time transfer function where the data were fitted.
 
     Parameters
     ----------
     model : StateSpaceModel
     frequencies_hz : ndarray, shape (F,)
+    rows : sequence of int, optional
+        Only these output channels (default all ``p``).
 
     Returns
     -------
@@ -264,7 +269,7 @@ def transfer_at_lines(model: StateSpaceModel, frequencies_hz: np.ndarray) -> np.
         z = np.exp(2j * np.arctan(np.pi * f * float(model.bilinear_period_s)))
     else:
         z = np.exp(2j * np.pi * f / model.sample_rate_hz)
-    return transfer_discrete(model, z)
+    return transfer_discrete(model, z, rows=rows)
 
 
 def _stats(values, num, den, eps, keep=None):

@@ -25,9 +25,10 @@ from fnsi_lab.ident.errors import IdentError
 from fnsi_lab.ident.periodic import FrequencyData, prepare_frequency_data  # noqa: F401  (re-export)
 
 __all__ = ["FrequencyData", "prepare_frequency_data", "SubspaceDecomposition", "Poles",
-           "StateSpaceModel", "subspace_decomposition", "default_block_rows", "state_matrices",
+           "StateSpaceModel", "subspace_decomposition", "default_block_rows", "default_output_rank",
+           "output_directions", "state_matrices",
            "model_at_order",
-           "models_for_orders", "estimate_bd", "make_model", "discrete_to_continuous",
+           "models_for_orders", "estimate_bd", "project_outputs", "make_model", "discrete_to_continuous",
            "compute_poles", "bilinear_to_continuous", "steady_state_output",
            "transfer_discrete", "frf", "underlying_linear_frf", "band_limited_to_continuous",
            "TIME_BASES"]
@@ -43,8 +44,9 @@ class SubspaceDecomposition:
 
     Attributes
     ----------
-    singular_values : ndarray, shape (i p,)
-        Singular values of ``C_Y^{-1/2} L22`` (descending); the order gap shows here.
+    singular_values : ndarray, shape (i p,) or (k,)
+        Singular values of ``C_Y^{-1/2} L22`` (descending); the order gap shows here. The
+        Gram form (``method='gram'``) gives the leading ``k = 2 n_max + 20`` only.
     observability : ndarray, shape (i p, n_cols)
         ``C_Y^{1/2} U S^{1/2}`` for the leading ``n_cols = min(i p, (i-1) p)`` directions;
         ``Gamma_i(n)`` is its first ``n`` columns.
@@ -65,6 +67,11 @@ class SubspaceDecomposition:
         squares when weighted (None: identity). Without it the weighting did not help: one
         channel 300x noisier than the others gave the same FRF error weighted or not
         (7.6e-3 vs 7.8e-3); with it, 6.1e-5.
+    output_basis : ndarray, shape (p, r) or None
+        Orthonormal leading output directions ``W`` when the subspace step ran on the
+        compressed outputs ``Y W`` (:func:`output_directions`); ``observability`` and
+        ``shift_weight`` are then in those ``r`` coordinates and :func:`state_matrices`
+        returns ``C = W C_r`` on every channel. None: every channel entered the QR.
     """
 
     singular_values: np.ndarray
@@ -76,6 +83,12 @@ class SubspaceDecomposition:
     weighted: bool
     timings_s: dict = field(default_factory=dict)
     shift_weight: np.ndarray | None = None
+    output_basis: np.ndarray | None = None
+
+    @property
+    def block_size(self) -> int:
+        """Rows per block row of ``observability``: ``r`` when compressed, else ``p``."""
+        return int(self.observability.shape[0] // self.block_rows)
 
 
 @dataclass(frozen=True, eq=False)
@@ -206,6 +219,11 @@ _FULL_COV_PERIODS_PER_OUTPUT = 2
 _NOISE_SMOOTHING_LINES = 8
 #: Lines per chunk when accumulating weighted normal equations (bounds memory).
 _CHUNK = 256
+#: Output directions kept beyond ``n_max + m_e`` when compressing (:func:`default_output_rank`).
+_OUTPUT_RANK_MARGIN = 8
+#: Above this QR cost (flops, ``4 F (i q)^2``) the subspace step uses lag sums instead of the
+#: QR: twice the 39-channel SmallSat's (i = 20, F = 2008), which keeps its exact QR.
+_QR_MAX_FLOPS = 1.2e10
 
 
 def _modal(a: np.ndarray):
@@ -310,8 +328,113 @@ def default_block_rows(n_outputs: int, max_order: int, n_lines: int, n_extended_
     return int(max(need, min(want, cap), 2))
 
 
+def default_output_rank(n_outputs: int, max_order: int, n_extended_inputs: int) -> int | None:
+    """Output directions kept by the subspace step, or None to use every channel.
+
+    A model of order ``n`` with ``m_e`` extended inputs produces outputs in at most
+    ``n + m_e`` real directions (the columns of ``C`` and ``D``), however many sensors there
+    are. Keeping ``n_max + m_e + 8`` directions (8 for the noise-level slack) loses nothing
+    a model of the sweep could explain, and the cost of the QR and SVD stops growing with
+    ``p`` (docs/ident.md, "Many channels").
+
+    Parameters
+    ----------
+    n_outputs, max_order, n_extended_inputs : int
+        ``p``, ``n_max``, ``m_e``.
+
+    Returns
+    -------
+    int or None
+        ``r < p``, or None when compressing would not reduce the problem.
+    """
+    r = int(max_order) + int(n_extended_inputs) + _OUTPUT_RANK_MARGIN
+    return r if r < int(n_outputs) else None
+
+
+def output_directions(Y: np.ndarray, rank: int) -> np.ndarray:
+    """Leading ``rank`` real output directions of a spectrum (PCA over the lines).
+
+    Parameters
+    ----------
+    Y : complex ndarray, shape (F, p)
+    rank : int
+
+    Returns
+    -------
+    ndarray, shape (p, rank)
+        Orthonormal columns: the eigenvectors of ``Re(Y^H Y)`` with the largest eigenvalues
+        (the right singular vectors of ``[Re Y; Im Y]``). Real, so a real ``C`` stays real.
+    """
+    Yr = np.concatenate([Y.real, Y.imag], axis=0)
+    G = Yr.T @ Yr
+    p = G.shape[0]
+    k = int(min(rank, p))
+    _, V = sla.eigh(G, subset_by_index=(p - k, p - 1), check_finite=False)
+    return np.ascontiguousarray(V[:, ::-1])
+
+
+def _lag_gram(z: np.ndarray, lines: np.ndarray, Wk: np.ndarray, i: int) -> np.ndarray:
+    """``G_d = sum_k z_k^d w_k w_k^H`` for the lags ``d = -(i-1) .. i-1``, shape (2i-1, q, q).
+
+    Lines that repeat (stacked realisations share ``z_k``) are summed first, so the lag sums
+    cost ``O(F_unique q^2 i)`` whatever the number of realisations.
+    """
+    import scipy.sparse as sps
+    _, first, inv = np.unique(lines, return_index=True, return_inverse=True)
+    zu = z[first]
+    F_u, q = zu.size, Wk.shape[1]
+    order = np.argsort(inv, kind="stable")
+    starts = np.searchsorted(inv[order], np.arange(F_u + 1))
+    chunk = max(8, 2 * _CHUNK * F_u // max(lines.size, 1))
+    lags = np.arange(-(i - 1), i)
+    G = np.zeros((lags.size, q * q), complex)
+    for k0 in range(0, F_u, chunk):
+        k1 = min(k0 + chunk, F_u)
+        rows = order[starts[k0]:starts[k1]]
+        ws = Wk[rows]
+        outer = (ws[:, :, None] * ws.conj()[:, None, :]).reshape(rows.size, q * q)
+        if rows.size != k1 - k0:  # repeated lines: sum the realisations of each line
+            agg = sps.csr_matrix((np.ones(rows.size), (inv[rows] - k0, np.arange(rows.size))),
+                                 shape=(k1 - k0, rows.size))
+            outer = agg @ outer
+        G += (zu[k0:k1][None, :] ** lags[:, None]) @ outer
+    return G.reshape(lags.size, q, q)
+
+
+def _hankel_residual_gram(data_z, lines, E, Y, i: int) -> np.ndarray:
+    """``L22 L22^T`` of the QR ``[E_i; Y_i] = L Q^T`` from lag sums, shape (i p, i p).
+
+    ``[E_i; Y_i] [E_i; Y_i]^T = Re(X X^H)`` is block Toeplitz in the block-row lag (block
+    ``(r, s)`` is ``Re G_{r-s}``), so the Gram matrix costs ``O(F q^2 i)`` instead of the QR's
+    ``O(F q^2 i^2)``; ``L22 L22^T`` is its Schur complement on the output rows.
+    """
+    m_e, p = E.shape[1], Y.shape[1]
+    G = _lag_gram(data_z, lines, np.hstack([E, Y]), i).real
+    r = np.arange(i)
+    d = r[:, None] - r[None, :] + i - 1          # lag index of block (r, s)
+
+    def blocks(a0, a1, b0, b1):
+        B = G[d][:, :, a0:a1, b0:b1]             # (i, i, ., .)
+        return B.transpose(0, 2, 1, 3).reshape(i * (a1 - a0), i * (b1 - b0))
+
+    Gee = blocks(0, m_e, 0, m_e)
+    Gey = blocks(0, m_e, m_e, m_e + p)
+    Gyy = blocks(m_e, m_e + p, m_e, m_e + p)
+    Gee = 0.5 * (Gee + Gee.T)
+    try:
+        L = sla.cholesky(Gee, lower=True, check_finite=False)
+        X = sla.solve_triangular(L, Gey, lower=True, check_finite=False)
+    except np.linalg.LinAlgError:  # collinear inputs: pseudo-inverse
+        w, V = np.linalg.eigh(Gee)
+        keep = w > w.max() * 1e-12
+        X = (V[:, keep] / np.sqrt(w[keep])).T @ Gey
+    S = Gyy - X.T @ X
+    return 0.5 * (S + S.T)
+
+
 def subspace_decomposition(data: FrequencyData, *, max_order: int, block_rows: int | None = None,
-                           weighted: bool = True) -> SubspaceDecomposition:
+                           weighted: bool = True, output_rank: int | str | None = "auto",
+                           method: str = "auto") -> SubspaceDecomposition:
     """One QR and one SVD giving ``Gamma_i`` for every order up to ``max_order``.
 
     Parameters
@@ -320,9 +443,20 @@ def subspace_decomposition(data: FrequencyData, *, max_order: int, block_rows: i
     max_order : int
         Largest order that will be asked (``<= (i - 1) p``).
     block_rows : int, optional
-        ``i``; default :func:`default_block_rows`.
+        ``i``; default :func:`default_block_rows` (of ``r`` when compressed).
     weighted : bool
         Use the noise covariance (if ``data.noise_cov`` is not None) in the SVD and in B, D.
+    output_rank : int, 'auto' or None
+        Run the subspace step on the ``r`` leading output directions ``Y W``
+        (:func:`output_directions`); ``'auto'``: :func:`default_output_rank`; None: every
+        channel. ``C`` is ``W C_r`` on every channel; B, D are estimated on every channel.
+    method : {'auto', 'qr', 'gram'}
+        How ``L22`` is obtained: ``'qr'`` (QR of the block Hankel matrices) or ``'gram'``
+        (block-Toeplitz lag sums and a Schur complement, :func:`_hankel_residual_gram`:
+        ``O(F q^2 i)`` instead of ``O(F q^2 i^2)``, independent of the number of stacked
+        realisations per unique line). ``'auto'``: QR while it costs at most ``_QR_MAX_FLOPS``
+        (exact to round-off; the Gram form resolves singular values down to about
+        ``sqrt(eps) S[0]`` only), else the Gram form.
 
     Returns
     -------
@@ -335,16 +469,25 @@ def subspace_decomposition(data: FrequencyData, *, max_order: int, block_rows: i
 
     Notes
     -----
-    Spec §1.3 (McKelvey's frequency-domain subspace step on the extended input, Noël &
-    Kerschen 2013): ``Y_i(k) = xi_k (x) Y(k)``, ``E_i(k) = xi_k (x) E(k)`` with
+    McKelvey's frequency-domain subspace step on the extended input (Noel & Kerschen 2013;
+    docs/ident.md): ``Y_i(k) = xi_k (x) Y(k)``, ``E_i(k) = xi_k (x) E(k)`` with
     ``xi_k = [1, z_k, ..., z_k^{i-1}]``; real and imaginary parts side by side;
     ``[E; Y] = L Q^T`` (QR of the transpose); ``C_Y^{-1/2} L22 = U S V^T``;
     ``Gamma_i = C_Y^{1/2} U S^{1/2}``, ``C_Y = sum_k Re[(xi_k xi_k^H) (x) Sigma_Y(k)]``.
+    With ``W`` (``output_rank``) the same on ``Y W`` and ``W^T Sigma_Y W``.
     """
-    p, m_e, F = data.n_outputs, data.n_extended_inputs, data.n_lines
+    p_all, m_e, F = data.n_outputs, data.n_extended_inputs, data.n_lines
     max_order = int(max_order)
     if max_order < 1:
         raise IdentError(f"max_order must be >= 1, got {max_order}")
+    if method not in ("auto", "qr", "gram"):
+        raise IdentError(f"method {method!r} is not one of 'auto', 'qr', 'gram'")
+    t0 = time.perf_counter()
+    rank = (default_output_rank(p_all, max_order, m_e) if output_rank == "auto"
+            else None if output_rank is None else int(output_rank))
+    W = output_directions(data.Y, rank) if rank is not None and rank < p_all else None
+    Y = data.Y if W is None else data.Y @ W
+    p = Y.shape[1]
     i = int(block_rows) if block_rows is not None else default_block_rows(p, max_order, F, m_e)
     if i < 2:
         raise IdentError(f"block_rows must be >= 2, got {i}")
@@ -355,16 +498,27 @@ def subspace_decomposition(data: FrequencyData, *, max_order: int, block_rows: i
     if 2 * F < i * (m_e + p):
         raise IdentError(f"too few lines: 2F = {2 * F} < block_rows * (m_e + p) = "
                          f"{i * (m_e + p)} (widen band_hz, lower block_rows or max order)")
-    t0 = time.perf_counter()
-    r = np.arange(i)
-    xi = data.z[None, :] ** r[:, None]  # (i, F); z_k from the data's time base
-    Ei = (xi[:, None, :] * data.E.T[None]).reshape(i * m_e, F)
-    Yi = (xi[:, None, :] * data.Y.T[None]).reshape(i * p, F)
-    M = np.block([[Ei.real, Ei.imag], [Yi.real, Yi.imag]])  # (i(m_e+p), 2F)
-    R = sla.qr(M.T, mode="r", check_finite=False)[0][:M.shape[0]]  # economic R
-    L22 = R[i * m_e:, i * m_e:].T  # (ip, ip); lower triangular block
+    if method == "auto":  # the QR is exact to round-off; the Gram form to sqrt(eps) of S[0]
+        method = "qr" if 4.0 * F * (i * (m_e + p)) ** 2 <= _QR_MAX_FLOPS else "gram"
+    t_w = time.perf_counter()
+    if method == "qr":
+        r = np.arange(i)
+        xi = data.z[None, :] ** r[:, None]  # (i, F); z_k from the data's time base
+        Ei = (xi[:, None, :] * data.E.T[None]).reshape(i * m_e, F)
+        Yi = (xi[:, None, :] * Y.T[None]).reshape(i * p, F)
+        M = np.block([[Ei.real, Ei.imag], [Yi.real, Yi.imag]])  # (i(m_e+p), 2F)
+        R = sla.qr(M.T, mode="r", check_finite=False)[0][:M.shape[0]]  # economic R
+        L22 = R[i * m_e:, i * m_e:].T  # (ip, ip); lower triangular block
+        S22 = None
+    else:
+        L22 = None
+        S22 = _hankel_residual_gram(data.z, data.lines, data.E, Y, i)  # L22 L22^T
     t1 = time.perf_counter()
     cov = _cov_for_svd(data, weighted)
+    if cov is not None and W is not None:  # W^T Sigma_k W, per line
+        cov = (np.einsum("ai,ka,aj->kij", W, cov, W, optimize=True) if cov.ndim == 2
+               else W.T @ cov @ W)
+    cy_sqrt = None
     if cov is not None:
         lags = np.arange(-(i - 1), i)
         zl = data.z[None, :] ** lags[:, None]
@@ -381,10 +535,17 @@ def subspace_decomposition(data: FrequencyData, *, max_order: int, block_rows: i
         w = np.maximum(w, w.max() * 1e-12)
         cy_isqrt = (V / np.sqrt(w)) @ V.T
         cy_sqrt = (V * np.sqrt(w)) @ V.T
-        U, S, _ = np.linalg.svd(cy_isqrt @ L22)
+    if L22 is not None:
+        U, S, _ = np.linalg.svd(L22 if cy_sqrt is None else cy_isqrt @ L22)
+    else:  # only the leading directions an order of the sweep can use (and a margin)
+        K = S22 if cy_sqrt is None else cy_isqrt @ S22 @ cy_isqrt
+        k = min((i - 1) * p, 2 * max_order + 20)
+        ev, U = sla.eigh(0.5 * (K + K.T), subset_by_index=(K.shape[0] - k, K.shape[0] - 1),
+                         check_finite=False)
+        ev, U = ev[::-1], U[:, ::-1]
+        S = np.sqrt(np.maximum(ev, 0.0))
+    if cy_sqrt is not None:
         U = cy_sqrt @ U
-    else:
-        U, S, _ = np.linalg.svd(L22)
     ncols = min((i - 1) * p, U.shape[1])
     obs = U[:, :ncols] * np.sqrt(S[:ncols])
     t2 = time.perf_counter()
@@ -397,13 +558,14 @@ def subspace_decomposition(data: FrequencyData, *, max_order: int, block_rows: i
         shift_w = (vs / np.sqrt(ws)) @ vs.T
     return SubspaceDecomposition(shift_weight=shift_w, singular_values=S, observability=obs,
                                  block_rows=i,
-                                 max_order=ncols, n_outputs=p, n_extended_inputs=m_e,
-                                 weighted=cov is not None,
-                                 timings_s={"qr": t1 - t0, "svd": t2 - t1})
+                                 max_order=ncols, n_outputs=p_all, n_extended_inputs=m_e,
+                                 weighted=cov is not None, output_basis=W,
+                                 timings_s={"compress": t_w - t0, method: t1 - t_w,
+                                            "svd": t2 - t1})
 
 
 def state_matrices(decomp: SubspaceDecomposition, order: int) -> tuple[np.ndarray, np.ndarray]:
-    """``A_d`` and ``C_d`` of one order by shift invariance (spec §1.3).
+    """``A_d`` and ``C_d`` of one order by shift invariance.
 
     Parameters
     ----------
@@ -415,23 +577,46 @@ def state_matrices(decomp: SubspaceDecomposition, order: int) -> tuple[np.ndarra
     -------
     a_d : ndarray, shape (n, n)
     c_d : ndarray, shape (p, n)
+        On every channel (``W C_r`` when the decomposition is compressed).
 
     Notes
     -----
     ``C = Gamma[0:p]``, ``A = Gamma[0:(i-1)p]^+ Gamma[p:ip]`` (least squares), each block row
     whitened by ``decomp.shift_weight`` when the decomposition is weighted.
     """
+    a_d, c_r = _state_matrices_block(decomp, order)
+    W = decomp.output_basis
+    return a_d, (c_r if W is None else W @ c_r)
+
+
+def _state_matrices_block(decomp: SubspaceDecomposition, order: int):
+    """:func:`state_matrices` in the decomposition's own block coordinates (``C_r``).
+
+    Every order's ``Gamma(n)`` is the first ``n`` columns of one matrix, so one QR of the
+    (whitened) upper block rows ``Gamma_up = Q R`` and ``M = Q^T Gamma_down`` serve the whole
+    sweep: ``A(n) = R[:n, :n]^{-1} M[:n, :n]`` is the least-squares shift solution of order
+    ``n`` (the leading columns of a QR are the QR of the leading columns). Orders whose
+    ``R[:n, :n]`` is numerically singular fall back to ``lstsq``.
+    """
     n = int(order)
-    p = decomp.n_outputs
-    G = decomp.observability[:, :n]
-    c_d = G[:p].copy()
-    if decomp.shift_weight is None:
-        a_d = np.linalg.lstsq(G[:-p], G[p:], rcond=None)[0]
-    else:  # weighted shift invariance: every block row whitened by Sigma_mean^{-1/2}
-        W = decomp.shift_weight
-        i = decomp.block_rows
-        Gw = (W @ G.reshape(i, p, n)).reshape(i * p, n)
-        a_d = np.linalg.lstsq(Gw[:-p], Gw[p:], rcond=None)[0]
+    p = decomp.block_size
+    G = decomp.observability
+    c_d = G[:p, :n].copy()
+    shared = decomp.__dict__.get("_shift_qr")
+    if shared is None or shared[0].shape[1] < n:  # the columns up to 2 n (at least 64)
+        k = min(G.shape[1], max(2 * n, 64))
+        G = G[:, :k]
+        if decomp.shift_weight is not None:  # every block row whitened by Sigma_mean^{-1/2}
+            i = decomp.block_rows
+            G = (decomp.shift_weight @ G.reshape(i, p, k)).reshape(i * p, k)
+        Q, R = np.linalg.qr(G[:-p])
+        shared = decomp.__dict__["_shift_qr"] = (R, Q.T @ G[p:], G)
+    R, M, Gw = shared
+    d = np.abs(np.diag(R[:n, :n]))
+    if n and d.min() > 1e-12 * d.max():
+        a_d = sla.solve_triangular(R[:n, :n], M[:n, :n], check_finite=False)
+    else:
+        a_d = np.linalg.lstsq(Gw[:-p, :n], Gw[p:, :n], rcond=None)[0]
     return a_d, c_d
 
 
@@ -544,11 +729,63 @@ def estimate_bd(a_d: np.ndarray, c_d: np.ndarray, data: FrequencyData, *, d_zero
     return _estimate_bd(a_d, c_d, data, d_zero=d_zero, weighted=weighted, modal=_modal(a_d))
 
 
+def project_outputs(data: FrequencyData, basis: np.ndarray, *, d_zero: bool = False):
+    """Split the outputs into the span of ``basis`` and its orthogonal complement.
+
+    With ``C = W C_r`` (``W`` = ``basis``, orthonormal columns) the unweighted B, D least
+    squares separates exactly: ``sum_k ||Y_k - C X_k - D E_k||^2 =
+    sum_k ||W^T Y_k - C_r X_k - D_r E_k||^2 + sum_k ||Y_perp,k - D_perp E_k||^2`` with
+    ``D = W D_r + D_perp`` (``W`` real, the two parts orthogonal in every line). So B and
+    ``D_r`` come from the ``r``-channel problem and ``D_perp`` from one small least squares
+    that no model changes: the cost of B, D and of the model error stops growing with ``p``.
+
+    Parameters
+    ----------
+    data : FrequencyData
+    basis : ndarray, shape (p, r)
+        Orthonormal columns.
+    d_zero : bool
+        ``D = 0``: then ``D_perp = 0``.
+
+    Returns
+    -------
+    reduced : FrequencyData
+        ``data`` with ``Y W`` (r channels ``w0 ...``), no noise covariance (the split is exact
+        for the unweighted problem only).
+    d_perp : ndarray, shape (p, m_e)
+        Physical basis units (as ``D``).
+    perp_residual : ndarray, shape (F,)
+        ``||Y_perp,k - D_perp E_k||^2`` per line (output units squared).
+    """
+    from dataclasses import replace
+    W = np.asarray(basis, float)
+    Yc = data.Y @ W
+    Yp = data.Y - Yc @ W.T
+    if d_zero:
+        d_perp = np.zeros((W.shape[0], data.n_extended_inputs))
+    else:  # real D: real and imaginary parts of every line are equations
+        Ep = data.E_physical
+        Er = np.concatenate([Ep.real, Ep.imag])
+        d_perp = np.linalg.lstsq(Er, np.concatenate([Yp.real, Yp.imag]), rcond=None)[0].T
+        Yp = Yp - data.E_physical @ d_perp.T
+    reduced = replace(data, Y=Yc, noise_cov=None,
+                      output_names=tuple(f"w{k}" for k in range(W.shape[1])))
+    return reduced, d_perp, np.sum(np.abs(Yp) ** 2, axis=1)
+
+
 def _estimate_bd(a_d, c_d, data, *, d_zero, weighted, modal):
     """:func:`estimate_bd` with a precomputed ``(mu, Phi, ok)`` of ``a_d``."""
     n = a_d.shape[0]
     p, m_e = data.n_outputs, data.n_extended_inputs
     Q = _inverse_covariance(data, weighted)
+    if Q is None and p > n + _OUTPUT_RANK_MARGIN and n > 0:
+        # unweighted: exact on range(C) plus the complement's D (project_outputs), so the
+        # D unknowns of hundreds of channels never enter the normal equations
+        W = np.linalg.qr(c_d)[0]
+        reduced, d_perp, _ = project_outputs(data, W, d_zero=d_zero)
+        b_d, d_r = _estimate_bd(a_d, W.T @ c_d, reduced, d_zero=d_zero, weighted=False,
+                                modal=modal)
+        return b_d, W @ d_r + d_perp
     mu, phi, ok = modal
     E, Y = data.E, data.Y
     nq = n + (0 if d_zero else p)
@@ -678,7 +915,10 @@ def _transfer(a, b, c, d, s, *, modal=None) -> np.ndarray:
         ch = c @ phi
         bh = np.linalg.solve(phi, b)
         w = 1.0 / (s[:, None] - mu[None, :])
-        return (ch[None] * w[:, None, :]) @ bh + d[None]
+        m_e = bh.shape[1]
+        X = (w[:, :, None] * bh[None]).transpose(1, 0, 2).reshape(n, -1)  # (n, F m_e)
+        H = (ch @ X).reshape(c.shape[0], s.size, m_e).transpose(1, 0, 2)  # one GEMM
+        return H + d[None]
     X = np.linalg.solve(s[:, None, None] * np.eye(n)[None] - a, np.broadcast_to(b, (s.size,) + b.shape))
     return c[None] @ X + d[None]
 
@@ -898,19 +1138,22 @@ def _ct_modal(model: StateSpaceModel):
 
 
 # ---------------------------------------------------------------------------- responses
-def transfer_discrete(model: StateSpaceModel, z: np.ndarray) -> np.ndarray:
+def transfer_discrete(model: StateSpaceModel, z: np.ndarray, rows=None) -> np.ndarray:
     """``G_d(z) = C (z I - A_d)^{-1} B_d + D``.
 
     Parameters
     ----------
     model : StateSpaceModel
     z : complex ndarray, shape (F,)
+    rows : sequence of int, optional
+        Only these outputs (a coefficient needs two channels of hundreds).
 
     Returns
     -------
-    complex ndarray, shape (F, p, m_e)
+    complex ndarray, shape (F, p, m_e), or (F, len(rows), m_e)
     """
-    return _transfer(model.a_d, model.b_d, model.c_d, model.d_d, z, modal=_dt_modal(model))
+    c, d = (model.c_d, model.d_d) if rows is None else (model.c_d[rows], model.d_d[rows])
+    return _transfer(model.a_d, model.b_d, c, d, z, modal=_dt_modal(model))
 
 
 def steady_state_output(model: StateSpaceModel, data: FrequencyData) -> np.ndarray:
