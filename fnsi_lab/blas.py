@@ -28,6 +28,12 @@ def limit_blas_threads(n: int = 1) -> int | None:
     import ctypes
     import sys
 
+    # numpy and scipy wheels each bundle their own OpenBLAS, and scipy's is loaded only
+    # with scipy.linalg: load both now, or the first identification of a process would
+    # run scipy's solves multi-threaded (slower, and not bit-identical to the next ones)
+    import numpy  # noqa: F401
+    import scipy.linalg  # noqa: F401
+
     if not sys.platform.startswith("linux"):
         return None
     try:
