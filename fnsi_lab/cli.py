@@ -26,7 +26,7 @@ from fnsi_lab import __version__
 from fnsi_lab.errors import FnsiLabError
 
 #: Modules that contribute subcommands, in help order.
-COMMAND_MODULES = ("fnsi_lab.daq.cli", "fnsi_lab.daq.drive_cli", "fnsi_lab.daq.formats.cli", "fnsi_lab.ident.cli", "fnsi_lab.export.cli", "fnsi_lab.replay.cli", "fnsi_lab.viewer.cli", "fnsi_lab.campaign.cli")
+COMMAND_MODULES = ("fnsi_lab.daq.cli", "fnsi_lab.daq.drive_cli", "fnsi_lab.daq.formats.cli", "fnsi_lab.ident.cli", "fnsi_lab.export.cli", "fnsi_lab.replay.cli", "fnsi_lab.viewer.cli", "fnsi_lab.viewer.report_cli", "fnsi_lab.campaign.cli")
 
 #: Command -> module registering it, for commands whose module need not be imported to
 #: find them. A module of COMMAND_MODULES whose commands are not listed here still works:
@@ -35,7 +35,7 @@ COMMAND_INDEX = {
     "acquire": "fnsi_lab.daq.cli", "info": "fnsi_lab.daq.cli", "recover": "fnsi_lab.daq.cli",
     "excitation": "fnsi_lab.daq.drive_cli", "ident": "fnsi_lab.ident.cli",
     "run": "fnsi_lab.replay.cli", "live": "fnsi_lab.replay.cli", "replay": "fnsi_lab.replay.cli",
-    "view": "fnsi_lab.viewer.cli", "import": "fnsi_lab.daq.formats.cli",
+    "view": "fnsi_lab.viewer.cli", "report": "fnsi_lab.viewer.report_cli", "import": "fnsi_lab.daq.formats.cli",
     "export": "fnsi_lab.export.cli",
     "batch": "fnsi_lab.campaign.cli", "campaign": "fnsi_lab.campaign.cli",
 }

@@ -388,6 +388,7 @@ def _cmd_live(args: argparse.Namespace) -> int:
     config = load_experiment(args.config)
     output = check_output_path(config.output if args.out is None else args.out,
                                force=args.force)
+    html_path = _report_path(args, output)
     pace = None if args.fast else args.speed
     source = make_source(config, pace=pace) if pace is not None else make_source(config)
     metadata = recording_metadata(config, source)
@@ -416,6 +417,8 @@ def _cmd_live(args: argparse.Namespace) -> int:
     close_stream(rec, sinks)
     print(report.summary())
     _finish_report(run, service, sinks, wall)
+    if html_path is not None and not report.interrupted:
+        _write_html_report(html_path, service, output, force=args.force)
     if args.web_wait and sinks.web_url:
         print(f"serving the web viewer for {args.web_wait:g} s more at {sinks.web_url}",
               file=sys.stderr)
@@ -429,6 +432,35 @@ def _cmd_live(args: argparse.Namespace) -> int:
               file=sys.stderr)
         return 1
     return 0
+
+
+def _report_path(args: argparse.Namespace, output: Path) -> Path | None:
+    """Where ``run`` writes its HTML report (next to the .rrd), checked before any work."""
+    if not getattr(args, "html_report", False):
+        return None
+    from fnsi_lab.outputs import check_output_path
+
+    rrd = Path(args.rrd) if getattr(args, "rrd", None) else output.with_suffix(".rrd")
+    return check_output_path(args.report or rrd.with_suffix(".html"), force=args.force,
+                             option="--report")
+
+
+def _write_html_report(path: Path, service: Any, recording: Path, *, force: bool) -> None:
+    """The HTML report of the last identification update (``viewer.report``)."""
+    from fnsi_lab.daq.recording.reader import open_recording
+    from fnsi_lab.replay.service import AutoIdentification
+    from fnsi_lab.viewer.report_cli import write_report
+
+    last = service.updates[-1] if service.updates else None
+    if last is None or not isinstance(last.result, AutoIdentification):
+        print(f"no HTML report: no identification to report ({path} not written)",
+              file=sys.stderr)
+        return
+    with open_recording(recording) as rec:
+        metadata = dict(rec.metadata)
+    write_report(path, last.result.identification.to_json(), metadata, force=force,
+                 title=f"fnsi-lab report: {recording.name}")
+    print(f"HTML report written to {path}")
 
 
 # ---------------------------------------------------------------------------- run
@@ -496,7 +528,8 @@ def register(subparsers: Any) -> None:
                     "robust FNSI pipeline (information criterion over the order sweep, "
                     "stabilisation, MDI, spurious-pole removal) and save everything to a "
                     "Rerun recording; the result table (the paper's Table 2 layout, with "
-                    "errors when the recording carries its truth) is printed at the end. "
+                    "errors when the recording carries its truth) is printed at the end and "
+                    "an offline HTML report (figures embedded) is written next to the .rrd. "
                     "The same as `fnsi-lab live --fast`, with the paper's order sweep 2..60 and its "
                     "processed band (--harmonics 5).",
         epilog="examples:\n"
@@ -506,8 +539,13 @@ def register(subparsers: Any) -> None:
     _experiment_arguments(p)
     p.add_argument("--queue-blocks", type=_positive_int, default=1 << 16, metavar="B",
                    help="capacity of the identification queue in blocks (drop-oldest)")
+    p.add_argument("--report", metavar="REPORT.html",
+                   help="HTML report of the identification (default: next to the .rrd, "
+                        "same name with .html)")
+    p.add_argument("--no-report", dest="html_report", action="store_false",
+                   help="do not write the HTML report")
     _common(p, orders="2:60", harmonics=5.0)
-    p.set_defaults(handler=_cmd_run, speed=None)
+    p.set_defaults(handler=_cmd_run, speed=None, html_report=True)
 
     p = subparsers.add_parser(
         "live", formatter_class=fmt,

@@ -1,0 +1,455 @@
+"""One self-contained HTML report of an identification, for a test report.
+
+``render_report(result, metadata)`` turns the identification JSON (what
+``fnsi-lab ident --json`` writes, :meth:`fnsi_lab.ident.pipeline.Identification.to_json`)
+and, optionally, the recording's metadata into one HTML page: stabilisation diagram,
+information criterion, MDI per pole, coefficient spectra with their statistics, measured /
+model / underlying-linear FRFs, the mode table, the Table-2-like summary and the recording
+metadata. Figures are matplotlib SVG inlined in the page: it opens offline, in any browser,
+and can be attached or printed as it is.
+
+Extraction (``*_rows``, :func:`driving_point`) is plain dict/array work; the ``figure_*``
+functions return matplotlib figures; :func:`render_report` assembles the page.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import html
+import io
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+#: Stabilisation classes in legend order -> (colour, marker, legend).
+STAB_STYLE: dict[str, tuple[str, str, str]] = {
+    "new": ("#b9b9b9", ".", "new pole"),
+    "frequency": ("#56b4e9", "x", "stable in frequency"),
+    "damping": ("#e69f00", "s", "+ damping"),
+    "mode": ("#cc79a7", "D", "+ mode shape (MAC)"),
+    "stable": ("#009e73", "^", "fully stable"),
+    "unstable": ("#d55e00", "*", "unstable (zeta < 0)"),
+}
+FRF_STYLE = {"measured": "#282828", "model": "#e69f00", "underlying_linear": "#0072b2"}
+COEFF_COLOURS = ("#0072b2", "#d55e00", "#009e73", "#cc79a7", "#e69f00", "#56b4e9")
+
+
+# ---------------------------------------------------------------------------- extraction
+def complex_array(obj: Any) -> np.ndarray:
+    """``{"re": ..., "im": ...}`` (JSON) -> complex ndarray (nulls become NaN)."""
+    re = np.asarray(obj["re"], dtype=float)
+    im = np.asarray(obj["im"], dtype=float)
+    return re + 1j * im
+
+
+def stabilisation_rows(result: Mapping[str, Any]) -> list[dict]:
+    """One row per pole of the stabilisation diagram: ``order``, ``frequency_hz``,
+    ``damping_ratio``, ``class`` (``unstable`` for zeta < 0), ``mac``."""
+    rows = []
+    for entry in result.get("stabilisation") or []:
+        for p in entry.get("poles", []):
+            rows.append({"order": int(entry["order"]), "frequency_hz": p["frequency_hz"],
+                         "damping_ratio": p.get("damping_ratio"),
+                         "class": "unstable" if p.get("unstable") else p.get("class"),
+                         "mac": p.get("mac")})
+    return rows
+
+
+def mdi_key(result: Mapping[str, Any]) -> str:
+    """Column of the MDI table the pipeline used (``mdi_h2``, ``mdi_hinf``...)."""
+    norm = str(result.get("mdi_norm") or "h2")
+    key = f"mdi_{norm}"
+    rows = result.get("mdi") or []
+    return key if rows and key in rows[0] else "mdi_h2"
+
+
+def driving_point(outputs: Sequence[str], inputs: Sequence[str], output: str | None = None) -> int:
+    """Index of the output to show: ``output`` if given, else the one whose name ends the
+    force's name (``F-NC2W-Z`` -> ``NC2W-Z``), else the first.
+
+    Raises
+    ------
+    KeyError
+        ``output`` is not one of ``outputs``.
+    """
+    if output is not None:
+        return list(outputs).index(output)
+    force = inputs[0] if inputs else ""
+    for i, name in enumerate(outputs):
+        if force.endswith(name):
+            return i
+    return 0
+
+
+def exact_values(result: Mapping[str, Any]) -> dict[str, float]:
+    """Known coefficient values (simulations): from the coefficient spectra, else from the
+    relative error the pipeline reports against them."""
+    spectra = result.get("coefficient_spectra") or {}
+    exact = {k: float(v) for k, v in (spectra.get("exact") or {}).items() if v is not None}
+    for c in result.get("coefficients") or []:
+        err = c.get("error_percent")
+        if c["name"] not in exact and err is not None and c.get("mean_real") is not None:
+            exact[c["name"]] = c["mean_real"] / (1.0 + err / 100.0)
+    return exact
+
+
+def summary_rows(result: Mapping[str, Any]) -> list[tuple[str, str]]:
+    """The Table-2-like summary: order decisions, then every coefficient estimate."""
+    def num(x: Any, fmt: str = ".4g") -> str:
+        return "-" if x is None else format(x, fmt)
+
+    rows = [("method", str(result.get("method", "-"))), ("answer order", num(result.get("order"), "d"))]
+    if result.get("method") == "auto":
+        phys = sum(1 for r in result.get("mdi") or [] if r.get("physical"))
+        conf = result.get("confidence")
+        rows += [("selected order (IC)", num(result.get("selected_order"), "d")),
+                 ("MDI order", num(result.get("mdi_order"), "d")),
+                 ("physical modes", str(phys)),
+                 ("reduced order", num((result.get("reduced") or {}).get("order"), "d")),
+                 ("final model", str(result.get("final", "-"))),
+                 ("MDI threshold", num(result.get("threshold"), ".3g")),
+                 ("separation ratio", num(result.get("separation_ratio"), ".3g")),
+                 ("confidence", str(conf.get("level", conf)) if isinstance(conf, dict)
+                  else str(conf or "-"))]
+    models = [("answer", result.get("coefficients"))]
+    if result.get("method") == "auto":
+        models = [("full model", (result.get("full_model") or {}).get("coefficients")),
+                  ("reduced model", (result.get("reduced") or {}).get("coefficients"))]
+    for label, coeffs in models:
+        for c in coeffs or []:
+            text = f"{num(c.get('mean_real'), '.6g')} ± {num(c.get('std_real'), '.3g')}"
+            if c.get("error_percent") is not None:
+                text += f" (error {c['error_percent']:+.3f} %)"
+            text += f"; LS {num(c.get('ls_value'), '.6g')}"
+            if c.get("ls_error_percent") is not None:
+                text += f" ({c['ls_error_percent']:+.3f} %)"
+            rows.append((f"{c['name']}, {label}", text))
+    return rows
+
+
+def mode_rows(result: Mapping[str, Any]) -> list[dict]:
+    """Mode table: the in-band poles of the MDI order with their decisions (robust pipeline),
+    else the modes of the answer."""
+    key = mdi_key(result)
+    rows = [r for r in result.get("mdi") or [] if r.get("in_band") or r.get("physical")]
+    if rows:
+        return [{"f (Hz)": f"{r['frequency_hz']:.4g}",
+                 "zeta (%)": f"{100 * r['damping_ratio']:.3g}",
+                 "MDI": f"{r[key]:.3g}" if r.get(key) is not None else "-",
+                 "stabilisation": str(r.get("stabilisation") or "-"),
+                 "physical": "yes" if r.get("physical") else "no"} for r in rows]
+    return [{"f (Hz)": f"{m['frequency_hz']:.4g}", "zeta (%)": f"{100 * m['damping_ratio']:.3g}",
+             "stable": "yes" if m.get("stable") else "no"} for m in result.get("modes") or []]
+
+
+def coefficient_statistics(result: Mapping[str, Any]) -> list[dict]:
+    """Per coefficient of the answer: mean, spread, LS value, errors, lines used."""
+    exact = exact_values(result)
+    out = []
+    for c in result.get("coefficients") or []:
+        out.append({"coefficient": c["name"], "value (declared)": _g(c.get("value")),
+                    "mean Re": _g(c.get("mean_real")), "std Re": _g(c.get("std_real"), 3),
+                    "log10 |Re/Im|": _g(c.get("log10_re_im"), 3), "LS value": _g(c.get("ls_value")),
+                    "exact": _g(exact.get(c["name"])),
+                    "error mean (%)": _g(c.get("error_percent"), 3),
+                    "error LS (%)": _g(c.get("ls_error_percent"), 3),
+                    "lines": str(c.get("n_lines", "-"))})
+    return out
+
+
+def _g(x: Any, digits: int = 6) -> str:
+    return "-" if x is None else f"{x:.{digits}g}"
+
+
+# ---------------------------------------------------------------------------- figures
+def _figure(width: float = 9.0, height: float = 4.0, rows: int = 1, sharex: bool = False):
+    import matplotlib
+
+    matplotlib.use("Agg")  # no display needed; idempotent
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(rows, 1, figsize=(width, height), sharex=sharex, squeeze=False,
+                             layout="constrained")
+    return fig, [a[0] for a in axes]
+
+
+def figure_stabilisation(result: Mapping[str, Any]) -> Any:
+    """Pole frequency against model order, one marker per class, the selected order marked."""
+    rows = stabilisation_rows(result)
+    fig, (ax,) = _figure(9.0, 5.0)
+    classes = list(STAB_STYLE) + sorted({r["class"] for r in rows} - set(STAB_STYLE))
+    for cls in classes:
+        sel = [r for r in rows if r["class"] == cls]
+        if not sel:
+            continue
+        color, marker, label = STAB_STYLE.get(cls, ("#777777", "o", str(cls)))
+        ax.scatter([r["order"] for r in sel], [r["frequency_hz"] for r in sel], s=14,
+                   c=color, marker=marker, label=f"{label} ({len(sel)})", linewidths=0.8)
+    _mark_order(ax, result.get("selected_order"))
+    ax.set_xlabel("model order")
+    ax.set_ylabel("pole frequency (Hz)")
+    ax.set_title(f"Stabilisation diagram ({len(rows)} poles)")
+    ax.grid(alpha=0.3)
+    fig.legend(loc="outside lower center", fontsize=8, ncol=4)  # off the poles
+    return fig
+
+
+def _mark_order(ax: Any, order: Any) -> None:
+    if order is not None:
+        ax.axvline(order, color="#d55e00", lw=1.0, ls="--", label=f"selected order {order}")
+
+
+def figure_criterion(result: Mapping[str, Any]) -> Any:
+    """Information criterion against model order (log scale), the selected order marked."""
+    ic = result.get("information_criterion") or []
+    fig, (ax,) = _figure(9.0, 3.6)
+    n = np.array([r["order"] for r in ic], dtype=float)
+    v = np.array([np.nan if r.get("value") is None else r["value"] for r in ic], dtype=float)
+    ok = np.isfinite(v) & (v > 0)
+    ax.semilogy(n[ok], v[ok], "o-", color="#0072b2", ms=3, lw=1.2, label="I(n)")
+    sel = result.get("selected_order")
+    if sel is not None and np.any(n[ok] == sel):
+        ax.semilogy([sel], v[ok][n[ok] == sel][:1], "D", color="#d55e00", ms=8,
+                    label=f"selected order {sel}")
+    ax.set_xlabel("model order")
+    ax.set_ylabel(f"information criterion ({result.get('criterion', 'I(n)')})")
+    ax.set_title("Information criterion")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=8)
+    return fig
+
+
+def figure_mdi(result: Mapping[str, Any]) -> Any:
+    """MDI of each pole of the MDI order against its frequency, physical and spurious apart."""
+    key = mdi_key(result)
+    rows = [r for r in result.get("mdi") or [] if r.get(key) is not None and r[key] > 0]
+    fig, (ax,) = _figure(9.0, 3.6)
+    for phys, color, marker, label in ((True, "#009e73", "o", "physical"),
+                                       (False, "#d55e00", "x", "spurious (removed)")):
+        sel = [r for r in rows if bool(r.get("physical")) == phys]
+        ax.semilogy([r["frequency_hz"] for r in sel], [r[key] for r in sel], marker,
+                    color=color, ms=6, ls="none", label=f"{label} ({len(sel)})")
+    thr = result.get("threshold")
+    if thr:
+        ax.axhline(thr, color="#777777", lw=1.0, ls="--", label=f"threshold {thr:.3g}")
+    band = result.get("band_hz")
+    if band:
+        ax.axvspan(band[0], band[1], color="#0072b2", alpha=0.06, label="processed band")
+    ax.set_xlabel("pole frequency (Hz)")
+    ax.set_ylabel(f"MDI ({key.removeprefix('mdi_')})")
+    ax.set_title(f"Modal dominancy index per pole (order {result.get('mdi_order', '-')})")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=8)
+    return fig
+
+
+def figure_coefficients(result: Mapping[str, Any]) -> Any | None:
+    """Re and Im of each coefficient spectrum c_a(f), mean ± std over the excited lines and
+    the exact value when known; None without coefficients."""
+    spectra = result.get("coefficient_spectra")
+    if not spectra or not spectra.get("names"):
+        return None
+    f = np.asarray(spectra["frequency_hz"], dtype=float)
+    excited = np.asarray(spectra.get("excited", np.ones(f.size)), dtype=bool)
+    exact = exact_values(result)
+    stats = {c["name"]: c for c in result.get("coefficients") or []}
+    names = list(spectra["names"])
+    fig, axes = _figure(9.0, 2.8 * len(names) + 0.6, rows=len(names), sharex=True)
+    for k, (ax, name) in enumerate(zip(axes, names)):
+        color = COEFF_COLOURS[k % len(COEFF_COLOURS)]
+        c = complex_array(spectra["values"][name])
+        ax.plot(f, c.real, color=color, lw=1.2, label=f"Re {name}")
+        ax.plot(f, c.imag, color=color, lw=0.8, alpha=0.35, label=f"Im {name}")
+        st = stats.get(name)
+        if st and st.get("mean_real") is not None:
+            m, s = st["mean_real"], st.get("std_real") or 0.0
+            ax.axhspan(m - s, m + s, color=color, alpha=0.15,
+                       label=f"mean ± std over excited lines: {m:.6g} ± {s:.3g}")
+        if name in exact:
+            ax.axhline(exact[name], color="#282828", lw=1.0, ls="--",
+                       label=f"exact {exact[name]:.6g}")
+        if excited.any():
+            ax.axvspan(f[excited].min(), f[excited].max(), color="#777777", alpha=0.07)
+            band_vals = np.concatenate([c.real[excited], c.imag[excited],
+                                        [exact.get(name, np.nan)]])
+            band_vals = band_vals[np.isfinite(band_vals)]
+            if band_vals.size:  # the excited band sets the scale, not extrapolated lines
+                lo, hi = np.percentile(band_vals, [1, 99])
+                span = max(hi - lo, 1e-12)
+                ax.set_ylim(lo - 0.3 * span, hi + 0.3 * span)
+        ax.set_ylabel(name)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, loc="upper right")
+    axes[0].set_title("Nonlinear coefficient spectra (grey band: excited lines)")
+    axes[-1].set_xlabel("frequency (Hz)")
+    return fig
+
+
+def figure_frf(result: Mapping[str, Any], output: str | None = None) -> Any | None:
+    """Measured, model and underlying-linear FRF (dB, phase) of one output over the force."""
+    frf = result.get("frf")
+    if not frf or "underlying_linear" not in frf:
+        return None
+    f = np.asarray(frf["frequency_hz"], dtype=float)
+    i = driving_point(frf.get("outputs", []), frf.get("inputs", []), output)
+    fig, (mag, ph) = _figure(9.0, 6.0, rows=2, sharex=True)
+    for key, label, style in (("measured", "measured", dict(ls="none", marker=".", ms=2.5)),
+                              ("model", "model", dict(lw=1.2)),
+                              ("underlying_linear", "underlying linear", dict(lw=1.5))):
+        if key not in frf:
+            continue
+        h = complex_array(frf[key])[:, i, 0]
+        with np.errstate(divide="ignore"):
+            mag.plot(f, 20 * np.log10(np.abs(h)), color=FRF_STYLE[key], label=label, **style)
+        ph.plot(f, np.degrees(np.angle(h)), color=FRF_STYLE[key], label=label, **style)
+    name = (frf.get("outputs") or ["?"])[i]
+    force = (frf.get("inputs") or ["force"])[0]
+    mag.set_title(f"FRF {name} / {force}")
+    mag.set_ylabel("magnitude (dB)")
+    ph.set_ylabel("phase (deg)")
+    ph.set_yticks([-180, -90, 0, 90, 180])
+    ph.set_xlabel("frequency (Hz)")
+    for ax in (mag, ph):
+        ax.grid(alpha=0.3)
+    mag.legend(fontsize=8)
+    return fig
+
+
+def svg(fig: Any) -> str:
+    """A matplotlib figure as inline SVG text (closed afterwards)."""
+    import matplotlib.pyplot as plt
+
+    buf = io.StringIO()
+    fig.savefig(buf, format="svg")
+    plt.close(fig)
+    text = buf.getvalue()
+    return text[text.index("<svg"):]  # drop the XML prolog and DOCTYPE: inline in HTML
+
+
+# ---------------------------------------------------------------------------- HTML
+_CSS = """
+body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;margin:2em auto;max-width:1000px;color:#222}
+h1{font-size:1.6em}h2{font-size:1.25em;border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:1.8em}
+table{border-collapse:collapse;margin:.6em 0;font-size:.9em}td,th{border:1px solid #ddd;padding:3px 8px;text-align:left}
+th{background:#f3f3f3}figure{margin:1em 0}figure svg{max-width:100%;height:auto}
+.note{color:#666;font-size:.85em}code{background:#f5f5f5;padding:0 3px}
+"""
+
+
+def _table(rows: Sequence[Mapping[str, Any]]) -> str:
+    if not rows:
+        return "<p class='note'>none</p>"
+    cols = list(rows[0])
+    head = "".join(f"<th>{html.escape(str(c))}</th>" for c in cols)
+    body = "".join("<tr>" + "".join(f"<td>{html.escape(str(r.get(c, '')))}</td>" for c in cols)
+                   + "</tr>" for r in rows)
+    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+
+
+def _kv_table(rows: Sequence[tuple[str, Any]]) -> str:
+    return _table([{"quantity": k, "value": v} for k, v in rows])
+
+
+def _figure_html(fig: Any, caption: str, fig_id: str) -> str:
+    if fig is None:
+        return f"<p class='note'>{html.escape(caption)}: not available in this result.</p>"
+    return (f"<figure id='{fig_id}'>{svg(fig)}<figcaption class='note'>"
+            f"{html.escape(caption)}</figcaption></figure>")
+
+
+def metadata_rows(metadata: Mapping[str, Any] | None,
+                  result: Mapping[str, Any]) -> list[tuple[str, str]]:
+    """Recording and processing facts for the report header (short values only)."""
+    rows: list[tuple[str, str]] = []
+    md = dict(metadata or {})
+    exp = md.get("experiment") or {}
+    for k in ("name", "source_kind", "config_file", "software_version"):
+        if exp.get(k) is not None:
+            rows.append((f"experiment {k.replace('_', ' ')}", str(exp[k])))
+    clock = md.get("clock") or {}
+    if clock.get("acquisition_start_utc_ns"):
+        t = _dt.datetime.fromtimestamp(clock["acquisition_start_utc_ns"] / 1e9, _dt.timezone.utc)
+        rows.append(("acquisition start (UTC)", t.isoformat(timespec="seconds")))
+    chans = md.get("channels") or []
+    if chans:
+        kinds: dict[str, int] = {}
+        for c in chans:
+            kinds[c.get("quantity", "?")] = kinds.get(c.get("quantity", "?"), 0) + 1
+        rows.append(("channels", f"{len(chans)} (" + ", ".join(f"{n} {q}" for q, n in kinds.items())
+                     + ")"))
+    exc = md.get("excitation") or {}
+    for k in ("kind", "band_hz", "rms", "samples_per_period", "periods", "transient_periods",
+              "realizations", "sample_rate_hz"):
+        if exc.get(k) is not None:
+            rows.append((f"excitation {k.replace('_', ' ')}", str(exc[k])))
+    if exc.get("excited_lines") is not None:
+        rows.append(("excited lines", str(len(exc["excited_lines"]))))
+    truth = md.get("truth") or {}
+    if truth:
+        rows.append(("truth", f"model {truth.get('model', '?')}, "
+                              f"{len(truth.get('modes') or [])} modes known"))
+    for k in ("input", "config", "band_hz", "n_lines", "n_excited_lines", "n_periods",
+              "n_realizations", "output_quantity", "time_base"):
+        if result.get(k) is not None:
+            rows.append((f"identification {k.replace('_', ' ')}", str(result[k])))
+    total = (result.get("timings_s") or {}).get("total")
+    if total is not None:
+        rows.append(("identification time", f"{total:.2f} s"))
+    return rows
+
+
+def render_report(result: Mapping[str, Any], metadata: Mapping[str, Any] | None = None, *,
+                  title: str = "fnsi-lab identification report", output: str | None = None) -> str:
+    """The whole report as one HTML document (figures inline SVG, no external resource).
+
+    Parameters
+    ----------
+    result : mapping
+        Identification JSON (``Identification.to_json()`` / ``fnsi-lab ident --json``).
+    metadata : mapping, optional
+        Recording metadata (``Recording.metadata``: experiment, channels, excitation,
+        clock, truth...).
+    title : str
+        Page title.
+    output : str, optional
+        Output channel of the FRF figure (default: the driving point).
+    """
+    now = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+    parts = [f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
+             f"<title>{html.escape(title)}</title><style>{_CSS}</style></head><body>",
+             f"<h1>{html.escape(title)}</h1><p class='note'>generated {now} by fnsi-lab</p>",
+             "<h2>Summary</h2>", _kv_table(summary_rows(result)),
+             "<h2>Modes</h2>", _table(mode_rows(result))]
+    warnings = result.get("warnings") or []
+    if warnings:
+        parts.append("<ul class='note'>" + "".join(f"<li>{html.escape(str(w))}</li>"
+                                                   for w in warnings) + "</ul>")
+    auto = result.get("method") == "auto"
+    parts += ["<h2>Stabilisation diagram</h2>",
+              _figure_html(figure_stabilisation(result) if auto else None,
+                           "pole frequency against model order; classes against the previous "
+                           "order (frequency, damping, mode shape)", "fig-stabilisation"),
+              "<h2>Information criterion</h2>",
+              _figure_html(figure_criterion(result) if auto else None,
+                           "information criterion against model order", "fig-criterion"),
+              "<h2>Modal dominancy index</h2>",
+              _figure_html(figure_mdi(result) if auto else None,
+                           "MDI of each pole at the MDI order; poles below the threshold "
+                           "are removed as spurious", "fig-mdi"),
+              "<h2>Nonlinear coefficients</h2>", _table(coefficient_statistics(result)),
+              _figure_html(figure_coefficients(result),
+                           "coefficient spectra c_a(f): a physical coefficient is constant "
+                           "and real over the excited lines", "fig-coefficients"),
+              "<h2>Frequency response</h2>",
+              _figure_html(figure_frf(result, output),
+                           "measured FRF, model FRF (nonlinear terms included) and the "
+                           "underlying linear FRF", "fig-frf"),
+              "<h2>Recording and processing</h2>", _kv_table(metadata_rows(metadata, result)),
+              "</body></html>"]
+    return "\n".join(parts)
+
+
+__all__ = ["render_report", "stabilisation_rows", "summary_rows", "mode_rows",
+           "coefficient_statistics", "metadata_rows", "driving_point", "exact_values",
+           "figure_stabilisation", "figure_criterion", "figure_mdi", "figure_coefficients",
+           "figure_frf", "svg"]
