@@ -84,9 +84,10 @@ def run_import(args: argparse.Namespace) -> int:
             where = f"  node {c.node} {c.direction}" if c.node else ""
             print(f"  {role} {c.name:<20} {c.quantity:<13} [{c.unit}]{where}")
         if plan.samples_per_period:
+            k = plan.transient_periods
             print(f"  period N = {plan.samples_per_period}, "
                   f"{table.data.shape[0] // plan.samples_per_period} periods, "
-                  f"transient {plan.transient_periods if plan.transient_periods is not None else 'not given'}")
+                  f"transient {k if k is not None else 'not given'}")
         for note in plan.notes:
             print(f"  note: {note}", file=sys.stderr)
     return 0

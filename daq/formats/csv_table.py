@@ -18,7 +18,6 @@ Layout (what spreadsheet and DAQ exports write)::
 
 from __future__ import annotations
 
-import io
 import os
 import re
 
@@ -115,11 +114,10 @@ def read_csv(path: str | os.PathLike[str]) -> LabTable:
             raise LabFileError(f"{p}: line {start + 1}: two columns are named {n!r} (fix: give "
                                "each channel its own name)")
     rows = [ln for ln in lines[body:] if ln.strip() and not ln.lstrip().startswith("#")]
-    text = "\n".join(rows)
     if delimiter == ";":
-        text = text.replace(",", ".")  # decimal comma of semicolon-separated exports
+        rows = [ln.replace(",", ".") for ln in rows]  # decimal comma of ';' exports
     try:
-        data = np.loadtxt(io.StringIO(text), delimiter=delimiter, dtype=np.float64, ndmin=2)
+        data = np.loadtxt(rows, delimiter=delimiter, dtype=np.float64, ndmin=2)
     except ValueError:
         _raise_bad_cell(p, lines, body, delimiter, names)
         raise  # pragma: no cover - _raise_bad_cell always raises

@@ -83,8 +83,9 @@ class ImportPlan:
 
 
 def _agree(file_value: int | None, option: int | None, *, path: str, name: str) -> int | None:
-    if option is not None and option < (1 if name == "samples-per-period" else 0):
-        raise LabFileError(f"--{name} {option}: must be >= {1 if name == 'samples-per-period' else 0}")
+    least = 1 if name == "samples-per-period" else 0
+    if option is not None and option < least:
+        raise LabFileError(f"--{name} {option}: must be >= {least}")
     if file_value is not None and option is not None and file_value != option:
         raise LabFileError(f"{path}: the file says {name.replace('-', '_')} = {file_value} but "
                            f"--{name} says {option} (fix: omit --{name}, or correct it)")

@@ -27,7 +27,8 @@ _TIME_NAMES = {"time", "t", "time_s", "zeit"}
 
 def _where(obj: Any) -> str:
     """'the file' or 'group NAME', for messages."""
-    return f"group {obj.name!r}" if hasattr(obj, "channels") and hasattr(obj, "name") else "the file"
+    is_group = hasattr(obj, "channels") and hasattr(obj, "name")
+    return f"group {obj.name!r}" if is_group else "the file"
 
 
 def _integer_property(objects: list[Any], key: str, path: str) -> int | None:

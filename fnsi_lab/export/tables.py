@@ -100,7 +100,8 @@ def write_tables(folder: str | os.PathLike[str], result: ResultArrays,
         written.append(out / "coefficients.csv")
     if result.spectra and result.spectra_frequency_hz is not None:
         names = list(result.spectra)
-        header = ["frequency_hz", "excited"] + [f"{n}_{part}" for n in names for part in ("re", "im")]
+        header = ["frequency_hz", "excited"] + [f"{n}_{part}" for n in names
+                                                for part in ("re", "im")]
         excited = (result.spectra_excited if result.spectra_excited is not None
                    else np.ones(result.spectra_frequency_hz.size, bool))
         columns = [result.spectra[n] for n in names]
