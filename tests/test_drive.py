@@ -168,3 +168,27 @@ def test_drive_for_another_sample_rate_refused(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="made for 1000 Hz") as err:
         parse_experiment(exp, file="rig.yaml")
     assert "excitation.file" in str(err.value)
+
+
+def test_lab_session_yaml_of_the_docs_loads(tmp_path: Path) -> None:
+    """docs/hardware.md's lab_session.yaml: drive definition + trigger on a CAN source."""
+    import re
+
+    from fnsi_lab.daq.registry import make_source
+    from fnsi_lab.daq.sources.can_source import CanSource
+    from fnsi_lab.daq.trigger import TriggeredSource
+
+    doc = (Path(__file__).resolve().parent.parent / "docs" / "hardware.md").read_text("utf-8")
+    blocks = [b for b in re.findall(r"```yaml\n(.*?)```", doc, re.S)
+              if b.startswith("# lab_session.yaml")]
+    assert len(blocks) == 1
+    assert main(["excitation", "--out", str(tmp_path / "drive.wav"),
+                 "--volts-per-newton", "0.01", "--quiet"]) == 0
+    (tmp_path / "lab_session.yaml").write_text(blocks[0], encoding="utf-8")
+    config = load_experiment(tmp_path / "lab_session.yaml")
+    assert config.excitation.drive.unit == "V"
+    assert config.excitation.to_dict()["excited_lines"][0] == 41  # 5.005 Hz at N = 8192
+    src = make_source(config)
+    assert isinstance(src, TriggeredSource) and isinstance(src.inner, CanSource)
+    assert src.describe()["trigger"]["pre_samples"] == 1000
+    src.close()
