@@ -328,6 +328,23 @@ def test_export_nodes_from_names_and_negative_directions(result_json, tmp_path):
     assert {(d["ref_node"], d["ref_dir"]) for d in frfs} == {(12, 2)}
 
 
+def test_import_ident_export_keeps_uff_nodes(lab, imported, tmp_path):
+    # the command-line flow: UFF 58 -> import -> ident --json -> export; the response nodes
+    # and directions of the UFF records (1..4, +X) travel in the recording's channel table
+    yaml = pytest.importorskip("yaml")
+    cfg = tmp_path / "ident.yaml"
+    cfg.write_text(yaml.safe_dump(_config(None)))
+    result = tmp_path / "result.json"
+    assert main(["ident", str(imported["uff"]), "--config", str(cfg), "--order", "6",
+                 "--json", str(result), "--quiet"]) == 0
+    out = tmp_path / "from-uff.uff"
+    assert main(["export", str(result), "--uff", str(out), "--quiet"]) == 0
+    modes, frfs = _read_uff(out)
+    assert all(list(ds["node_nums"]) == [2, 3, 4] for ds in modes)
+    assert {(d["rsp_node"], d["rsp_dir"]) for d in frfs} == {(2, 1), (3, 1), (4, 1)}
+    assert {(d["ref_node"], d["ref_dir"]) for d in frfs} == {(1, 1)}
+
+
 def test_export_csv_tables(result_json, tmp_path):
     res = json.loads(result_json.read_text())
     folder = tmp_path / "tables"

@@ -7,8 +7,9 @@ import sys
 from pathlib import Path
 
 from fnsi_lab.errors import ConfigError, DataFileError
-from fnsi_lab.export.dofs import assign_dofs, parse_mapping, read_mapping_file
-from fnsi_lab.export.result import FRF_KINDS, load_result
+from fnsi_lab.export.dofs import (assign_dofs, channel_table_mapping, parse_mapping,
+                                  read_mapping_file)
+from fnsi_lab.export.result import FRF_KINDS, ResultArrays, load_result
 from fnsi_lab.export.tables import CSV_FILES, write_tables
 from fnsi_lab.export.uff import uff_text
 from fnsi_lab.outputs import atomic_output, check_output_path
@@ -22,8 +23,9 @@ examples:
 
 The UFF file holds every mode as dataset 55 (complex eigenvalue, complex shape at the
 outputs) and the measured, model and underlying linear FRFs as dataset 58. Node and
-direction come from channel names like NC2-Z or 12:+X; --map / --map-file give them where
-the names do not say. See docs/formats.md.
+direction come from --map / --map-file, else from the identified recording's channel table
+(a UFF 58 import keeps the response nodes there), else from channel names like NC2-Z or
+12:+X. See docs/formats.md.
 """
 
 
@@ -46,6 +48,9 @@ def register(subparsers) -> None:
                         "e.g. X1=101:+Z")
     p.add_argument("--map-file", default=None, metavar="DOFS.csv",
                    help="CSV rows channel,node,direction (same meaning as --map)")
+    p.add_argument("--recording", default=None, metavar="F.mcap",
+                   help="recording whose channel table gives node and direction (default: "
+                        "the result's input, when it is an .mcap file that exists)")
     p.add_argument("--frf", default=",".join(FRF_KINDS), metavar="KINDS",
                    help="FRFs to write as dataset 58, comma-separated from "
                         f"{', '.join(FRF_KINDS)}, or 'none' (default: all)")
@@ -63,6 +68,26 @@ def _frf_kinds(text: str) -> tuple[str, ...]:
         raise ConfigError(f"unknown FRF kind {bad[0]!r}", field="--frf",
                           fix=f"use {', '.join(FRF_KINDS)} or none")
     return kinds
+
+
+def recorded_dofs(result: ResultArrays, recording: str | None) -> dict[str, tuple[str, str]]:
+    """Node and direction from the channel table of the identified recording.
+
+    ``recording`` is given (``--recording``) or, by default, the result's input when it is
+    an existing ``.mcap`` file (as written, or relative to the result file's folder).
+    """
+    if recording is None:
+        given = Path(result.input_path) if result.input_path else None
+        if given is None or given.suffix.lower() != ".mcap":
+            return {}
+        found = [p for p in (given, Path(result.path).parent / given) if p.is_file()]
+        if not found:
+            return {}
+        recording = str(found[0])
+    from fnsi_lab.daq.recording.reader import open_recording
+
+    with open_recording(recording) as rec:
+        return channel_table_mapping(rec.channels)
 
 
 def run_export(args: argparse.Namespace) -> int:
@@ -84,8 +109,12 @@ def run_export(args: argparse.Namespace) -> int:
             raise DataFileError(f"--csv {csv_dir}: folder {csv_dir.parent} does not exist "
                                 "(fix: create it)")
     result = load_result(args.result)
-    mapping = read_mapping_file(args.map_file) if args.map_file else {}
-    mapping.update(parse_mapping(args.map))
+    explicit = read_mapping_file(args.map_file) if args.map_file else {}
+    explicit.update(parse_mapping(args.map))
+    # explicit mapping > the recording's channel table > the channel names
+    channels = set(result.outputs) | set(result.inputs)
+    mapping = {k: v for k, v in recorded_dofs(result, args.recording).items() if k in channels}
+    mapping.update(explicit)
     out_dofs = in_dofs = None
     if uff_path is not None:
         if not result.inputs and kinds:

@@ -4,8 +4,10 @@ UFF files address a measurement by an integer node number and a direction code. 
 channel named like ``NC2-Z`` or ``12:+X`` says both (:func:`fnsi_lab.daq.formats.dof.
 parse_node_direction`); node labels that are not integers (``NC2``) are numbered 1, 2, ...
 in order of appearance, skipping the numbers that integer labels already use. Channels
-whose names do not say (``X1``, ``F-X3``) are given with a mapping, ``NAME=NODE:DIR``
-(``--map``) or a CSV file of ``channel,node,direction`` rows (``--map-file``).
+whose names do not say (``X1``, ``F-X3``) take node and direction from the recording's
+channel table (:func:`channel_table_mapping`; a UFF 58 import keeps the response node and
+direction there) or from a mapping, ``NAME=NODE:DIR`` (``--map``) or a CSV file of
+``channel,node,direction`` rows (``--map-file``).
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ from __future__ import annotations
 import csv
 import os
 from dataclasses import dataclass
-from typing import Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 from fnsi_lab.daq.formats.dof import direction_code, parse_node_direction
 from fnsi_lab.errors import ConfigError
@@ -105,6 +107,34 @@ def read_mapping_file(path: str | os.PathLike[str]) -> dict[str, tuple[str, str]
             raise ConfigError(f"row {i} has {len(cells)} values", file=p, field=f"row {i}",
                               fix="write channel,node,direction (e.g. X1,101,+Z)")
         out[cells[0]] = _parse_target(f"{cells[1]}:{cells[2]}", source=p, channel=cells[0])
+    return out
+
+
+def channel_table_mapping(channels: Sequence[Any]) -> dict[str, tuple[str, str]]:
+    """Node and signed direction of the channels of a recording's channel table.
+
+    Parameters
+    ----------
+    channels : sequence of ChannelInfo
+        ``name``, ``node``, ``direction`` (``Z`` or ``+Z``...).
+
+    Returns
+    -------
+    dict of str to (node, direction)
+        Channels with a node and a known direction only (the others are left to their
+        names or an explicit mapping).
+    """
+    out: dict[str, tuple[str, str]] = {}
+    for c in channels:
+        node, direction = str(c.node).strip(), str(c.direction).strip().upper()
+        if not node or not direction:
+            continue
+        signed = direction if direction[:1] in "+-" else "+" + direction
+        try:
+            direction_code(signed)
+        except ValueError:
+            continue
+        out[str(c.name)] = (node, signed)
     return out
 
 

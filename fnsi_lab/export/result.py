@@ -88,6 +88,8 @@ class ResultArrays:
     coefficients : list of dict
         Coefficient summaries as in the JSON.
     order : int or None
+    input_path : str
+        The identification's input file as recorded in the result (``input``).
     """
 
     path: str
@@ -106,6 +108,7 @@ class ResultArrays:
     spectra: dict[str, np.ndarray] = field(default_factory=dict)
     coefficients: list[dict] = field(default_factory=list)
     order: int | None = None
+    input_path: str = ""
 
 
 def result_from_dict(res: dict, path: str = "<result>") -> ResultArrays:
@@ -188,7 +191,7 @@ def result_from_dict(res: dict, path: str = "<result>") -> ResultArrays:
         frequency_hz=freq, damping_ratio=damp, stable=stable, shapes=shapes, mode_rows=rows,
         frf_frequency_hz=frf_f, frf=frf, spectra_frequency_hz=sp_f, spectra_excited=sp_exc,
         spectra=spectra, coefficients=list(res.get("coefficients") or []),
-        order=res.get("order"))
+        order=res.get("order"), input_path=str(res.get("input") or ""))
 
 
 def load_result(path: str | os.PathLike[str]) -> ResultArrays:
