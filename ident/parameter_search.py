@@ -52,13 +52,16 @@ from fnsi_lab.ident.periodic import FrequencyData, with_basis
 
 __all__ = ["Unknown", "ParameterEstimate", "ParameterSearchResult", "search_spaces",
            "fixed_state_residual", "estimate_basis_parameters", "has_unknown_parameters",
-           "AUTO_EXPONENTS", "AUTO_SIGNED_EXPONENT_INTERVAL", "AUTO_CLEARANCE_FRACTION"]
+           "AUTO_EXPONENTS", "DEFAULT_SEARCH_ORDER", "AUTO_SIGNED_EXPONENT_INTERVAL", "AUTO_CLEARANCE_FRACTION"]
 
 #: ``exponent: auto`` of an unsigned polynomial: the whole exponents tried.
 AUTO_EXPONENTS: tuple[float, ...] = (2.0, 3.0, 4.0, 5.0, 6.0, 7.0)
 #: ``exponent: auto`` of a signed polynomial ``|x|^(e-1) x``: the search interval (``e = 1``
 #: is a linear spring, indistinguishable from the underlying linear stiffness).
 AUTO_SIGNED_EXPONENT_INTERVAL: tuple[float, float] = (1.5, 7.0)
+#: Model order of the search when the caller gives none (the configuration's ``order``
+#: otherwise; capped by the largest order of the sweep).
+DEFAULT_SEARCH_ORDER = 30
 #: ``clearances: auto``: fraction of the largest recorded excursion towards that side
 #: searched (a gap of 0 is a linear spring; a gap at the largest excursion never touches).
 AUTO_CLEARANCE_FRACTION: tuple[float, float] = (0.02, 0.98)
@@ -297,9 +300,9 @@ def search_block_rows(n_outputs: int, order: int, n_lines: int, n_extended_input
 
 def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity], *, order: int,
                               d_zero: bool = False, block_rows: int | None = None,
-                              weighted: bool = True, grid_points: int = 8,
+                              weighted: bool = True, grid_points: int = 7,
                               max_relative_std: float = 0.1, min_margin: float = 25.0,
-                              profile_offsets: Sequence[float] = (-0.05, -0.02, 0.02, 0.05),
+                              profile_offsets: Sequence[float] = (-0.03, 0.03),
                               progress: Callable[[str], None] | None = None) -> ParameterSearchResult:
     """Estimate the unknown clearances and exponents of ``basis`` from the data.
 

@@ -21,7 +21,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from fnsi_lab.ident.basis import Nonlinearity
+from fnsi_lab.ident.basis import ESTIMABLE, Nonlinearity
 from fnsi_lab.ident.coefficients import (CoefficientSpectra, nonlinear_coefficients,
                                          spread_function, summarize_coefficients)
 from fnsi_lab.ident.config import IdentConfig
@@ -29,7 +29,10 @@ from fnsi_lab.ident.errors import IdentError, IdentWarning
 from fnsi_lab.ident.fnsi import StateSpaceModel, model_at_order, subspace_decomposition
 from fnsi_lab.ident.io import IdentInput, select_channels
 from fnsi_lab.ident.options import parse_orders
-from fnsi_lab.ident.periodic import FrequencyData, prepare_frequency_data
+from fnsi_lab.ident.parameter_search import (DEFAULT_SEARCH_ORDER, estimate_basis_parameters,
+                                             has_unknown_parameters)
+from fnsi_lab.ident.periodic import FrequencyData, prepare_frequency_data, with_basis
+from fnsi_lab.progress import Progress
 
 __all__ = ["IdentSession", "Identification", "prepare_session", "identify_input",
            "default_config", "apply_recording_truth", "DEFAULT_ORDERS"]
@@ -57,6 +60,9 @@ class IdentSession:
         ``D = 0`` in the least squares.
     timings_s : dict
         Seconds per stage.
+    parameter_search : ParameterSearchResult or None
+        The estimate of the basis parameters left to the data (``clearances: auto``...);
+        ``config.nonlinearities`` then hold the estimated values.
     warnings : list of str
         Everything a user should read about the data (steady state, truth mismatch...).
     """
@@ -68,6 +74,7 @@ class IdentSession:
     d_zero: bool
     timings_s: dict = field(default_factory=dict)
     warnings: list = field(default_factory=list)
+    parameter_search: Any = None
 
 
 def apply_recording_truth(cfg: IdentConfig, truth: Mapping | None) -> tuple[IdentConfig, list[str]]:
@@ -85,7 +92,7 @@ def apply_recording_truth(cfg: IdentConfig, truth: Mapping | None) -> tuple[Iden
     nls = []
     for nl in cfg.nonlinearities:
         t = by_name.get(nl.name)
-        if t is None:
+        if t is None or nl.unknown:  # parameters left to the data are never taken from a truth
             nls.append(nl)
             continue
         coefs = t.get("coefficients", {})
@@ -194,8 +201,13 @@ def default_config(inp: IdentInput, *, harmonics: float = 1.0,
     return IdentConfig(band_hz=band, nonlinearities=basis, inputs=inputs)
 
 
-def prepare_session(inp: IdentInput, cfg: IdentConfig) -> IdentSession:
+def prepare_session(inp: IdentInput, cfg: IdentConfig, *, search_order: int | None = None,
+                    progress: Any = None) -> IdentSession:
     """Select the configured channels and build the frequency data.
+
+    Basis parameters left to the data (``clearances: auto``, ``exponent: auto``...) are
+    estimated here, before any identification (:mod:`ident.parameter_search`), at
+    ``search_order`` (default the config's ``order``, else 30).
 
     Raises
     ------
@@ -210,11 +222,14 @@ def prepare_session(inp: IdentInput, cfg: IdentConfig) -> IdentSession:
         raise IdentError(f"band_hz {list(cfg.band_hz)} starts above the Nyquist frequency "
                          f"{nyquist:g} Hz of the data (fs {inp.sample_rate_hz:g} Hz)")
     quantity = cfg.output_quantity or inp.output_quantity or "displacement"
+    unknown = has_unknown_parameters(cfg.nonlinearities)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", IdentWarning)
         data = prepare_frequency_data(
             u=inp.u, y=inp.y, sample_rate_hz=inp.sample_rate_hz,
-            samples_per_period=inp.samples_per_period, basis=cfg.nonlinearities,
+            samples_per_period=inp.samples_per_period,
+            basis=() if unknown else cfg.nonlinearities,
+            motion_for=cfg.nonlinearities if unknown else (),
             band_hz=cfg.band_hz,
             transient_periods=(cfg.transient_periods if cfg.transient_periods is not None
                                else inp.transient_periods),
@@ -227,9 +242,21 @@ def prepare_session(inp: IdentInput, cfg: IdentConfig) -> IdentSession:
     weighted = cfg.weighting != "none"
     if cfg.weighting == "noise" and data.noise_cov is None:
         raise IdentError("weighting: noise needs at least 2 steady-state periods (use auto or none)")
+    timings = {"prepare": time.perf_counter() - t0}
+    search = None
+    if unknown:  # the one place where 'auto' basis parameters become numbers
+        t1 = time.perf_counter()
+        bar = Progress(2, "basis parameters", enabled=bool(progress))
+        search = estimate_basis_parameters(
+            data, cfg.nonlinearities, order=int(search_order or cfg.order or DEFAULT_SEARCH_ORDER),
+            d_zero=cfg.d_zero_for(quantity), weighted=weighted,
+            progress=lambda note: bar.update(1, note=note))
+        cfg = replace(cfg, nonlinearities=search.basis)
+        data = with_basis(data, search.basis)
+        timings["parameter_search"] = time.perf_counter() - t1
     return IdentSession(config=cfg, input=inp, data=data, weighted=weighted,
-                        d_zero=cfg.d_zero_for(quantity),
-                        timings_s={"prepare": time.perf_counter() - t0},
+                        d_zero=cfg.d_zero_for(quantity), parameter_search=search,
+                        timings_s=timings,
                         warnings=list(inp.notes) + truth_notes
                         + [str(w.message) for w in caught])
 
@@ -376,7 +403,11 @@ class Identification:
         out["modes"] = [dict(m, shape={"re": m["shape"].real, "im": m["shape"].imag})
                         for m in self.modes]
         out["coefficients"] = self.coefficients
-        out["nonlinearities"] = [_nonlinearity_json(nl) for nl in s.config.nonlinearities]
+        out["nonlinearities"] = [_nonlinearity_json(nl, s.parameter_search, s.input.truth)
+                                 for nl in s.config.nonlinearities]
+        if s.parameter_search is not None:
+            out["parameter_search"] = {k: v for k, v in s.parameter_search.to_dict().items()
+                                       if k != "estimates"}
         out["coefficient_spectra"] = _spectra_json(self.coefficient_spectra)
         frf = self.frf()
         out["frf"] = {k: ({"re": v.real, "im": v.imag} if isinstance(v, np.ndarray)
@@ -401,16 +432,43 @@ class Identification:
         }
 
 
-def _nonlinearity_json(nl: Nonlinearity) -> dict:
-    """The basis element as used: kind, location and its parameters (gaps in the data's units)."""
+def _nonlinearity_json(nl: Nonlinearity, search: Any = None, truth: Mapping | None = None) -> dict:
+    """The basis element as used: kind, location and its parameters (gaps in the data's units).
+
+    Parameters estimated from the data (``search``) carry their standard deviation (null
+    for given values and for a choice among candidate exponents), the objective profile
+    under ``objective`` and, for simulated recordings whose truth holds the element's
+    clearances, ``clearance_error_percent`` (the truth is only compared, never used).
+    """
+    est = {e.unknown.parameter: e for e in search.for_element(nl.name)} if search else {}
+
+    def std(par: str) -> float | None:
+        return est[par].std if par in est else None
+
     out: dict[str, Any] = {"name": nl.name, "kind": nl.kind, "channels": dict(nl.channels),
                            "coefficients": list(nl.coefficient_names)}
+    pars: tuple[str, ...] = ()
     if nl.kind == "trilinear":
-        out["clearances"] = list(nl.clearances)
+        pars = ("g_neg", "g_pos")
+        out.update(clearances=list(nl.clearances), clearance_std=[std(p) for p in pars])
     elif nl.kind == "bilinear":
-        out.update(clearances=[nl.clearance], side=nl.side)
+        pars = ("clearance",)
+        out.update(clearances=[nl.clearance], clearance_std=[std("clearance")], side=nl.side)
     elif nl.kind == "polynomial":
-        out.update(exponent=nl.exponent, signed=nl.signed, argument=nl.argument)
+        out.update(exponent=nl.exponent, exponent_std=std("exponent"), signed=nl.signed,
+                   argument=nl.argument)
+    out["estimated"] = [p for p in ESTIMABLE.get(nl.kind, ()) if p in est]
+    if est:
+        out["objective"] = {p: {"values": e.profile_values, "relative_model_error":
+                                e.profile_objective, "std": e.std, "margin": e.margin,
+                                "interval": e.unknown.interval, "candidates": e.unknown.candidates}
+                            for p, e in est.items()}
+    given = {t.get("name"): t for t in (truth or {}).get("nonlinearities") or []
+             if isinstance(t, dict)}.get(nl.name)
+    if given and pars and any(p in est for p in pars) and len(given.get("clearances") or ()) == len(pars):
+        out["clearance_error_percent"] = [
+            100.0 * (nl.parameter(p) / float(g) - 1.0) if p in est and float(g) else None
+            for p, g in zip(pars, given["clearances"])]
     return out
 
 
@@ -462,7 +520,10 @@ def identify_input(inp: IdentInput, cfg: IdentConfig, *, order: int | None = Non
         Bad configuration for these data, or no stable model.
     """
     t0 = time.perf_counter()
-    session = prepare_session(inp, cfg)
+    sweep = (parse_orders(orders) if orders is not None else list(cfg.orders or DEFAULT_ORDERS))
+    search_order = (int(order) if order is not None
+                    else min(cfg.order or DEFAULT_SEARCH_ORDER, max(sweep)))
+    session = prepare_session(inp, cfg, search_order=search_order, progress=progress)
     cfg = session.config
     block_rows = block_rows or cfg.block_rows
     dp = _driving_points(session)
@@ -478,7 +539,6 @@ def identify_input(inp: IdentInput, cfg: IdentConfig, *, order: int | None = Non
     else:
         from fnsi_lab.ident.auto import identify_auto
 
-        sweep = parse_orders(orders) if orders is not None else list(cfg.orders or DEFAULT_ORDERS)
         options = replace(cfg.auto, d_zero=session.d_zero, weighted=session.weighted,
                           block_rows=block_rows or cfg.auto.block_rows)
         basis = cfg.nonlinearities
