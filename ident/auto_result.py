@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -200,8 +199,10 @@ class AutoResult:
         }
 
     def to_json(self, **kw) -> str:
-        """:meth:`to_dict` as JSON text."""
-        return json.dumps(self.to_dict(), **kw)
+        """:meth:`to_dict` as strict JSON text (NaN as null; :func:`fnsi_lab.outputs.dumps`)."""
+        from fnsi_lab.outputs import dumps
+
+        return dumps(self.to_dict(), **kw)
 
 
 def confidence_statement(separation_ratio: float, n_physical: int, disagreements: dict, *,
@@ -239,6 +240,9 @@ def confidence_statement(separation_ratio: float, n_physical: int, disagreements
     else:
         level = "clear"
     kept_ns = disagreements.get("kept_not_stabilised", [])
+    unresolved = disagreements.get("unresolved", [])
+    marginal = disagreements.get("marginal_detection", [])
+    extra = int(disagreements.get("extra_in_answer", 0))
     vetoed = disagreements.get("vetoed_not_stabilised", [])
     rescued = disagreements.get("rescued_by_stabilisation", [])
     drop_fs = disagreements.get("dropped_fully_stable", [])
@@ -246,6 +250,11 @@ def confidence_statement(separation_ratio: float, n_physical: int, disagreements
     steps = ["ambiguous", "moderate", "clear"]
     if (kept_ns or drop_fs or vetoed or rescued) and level != "ambiguous":
         level = steps[steps.index(level) - 1]
+    # calibration on outcomes (docs/robust.md): an answer that keeps in-band poles that are
+    # not physical modes, a kept mode within 2x of the detection limit, or near-undamped
+    # poles between the lines (a disturbance the model had to fit) is not "clear"
+    if (extra or marginal or unresolved or disagreements.get("mains_hum")) and level == "clear":
+        level = "moderate"
     parts = [f"{n_physical} mode(s) classified physical; separation ratio "
              + (f"{r:.3g}" if np.isfinite(r) else str(r))
              + f" (ambiguous below {ambiguous_ratio:g}, clear from {clear_ratio:g})."]
@@ -268,6 +277,25 @@ def confidence_statement(separation_ratio: float, n_physical: int, disagreements
     if rescued:
         parts.append("Kept below the MDI threshold because stabilised across orders: "
                      + ", ".join(f"{f:.2f} Hz" for f in rescued) + ".")
+    if unresolved:
+        parts.append("Kept although narrower than half the line spacing (near-undamped: a "
+                     "weakly damped mode these periods barely resolve, or a disturbance; "
+                     "check its damping with longer periods): "
+                     + ", ".join(f"{f:.2f} Hz" for f in unresolved) + ".")
+    hum = disagreements.get("mains_hum", [])
+    if hum:
+        parts.append("Dropped as mains hum (near-undamped at a 50/60 Hz harmonic): "
+                     + ", ".join(f"{f:.2f} Hz" for f in hum) + ".")
+    if marginal:
+        parts.append("Kept but within 2x of the detection limit: "
+                     + ", ".join(f"{f:.2f} Hz" for f in marginal) + ".")
+    if extra:
+        parts.append(f"The answer keeps {extra} in-band pole pair(s) that are not physical "
+                     "modes (removing them made the coefficients less consistent).")
+    src = disagreements.get("noise_source")
+    if src == "none":
+        parts.append("No noise estimate (one period per realisation and no non-excited lines "
+                     "in the band): detection is judged against the model's residual only.")
     if level == "ambiguous":
         parts.append("The split is ambiguous: check the stabilisation diagram or lower the order.")
     return {"level": level, "statement": " ".join(parts), "separation_ratio":
@@ -279,4 +307,8 @@ def confidence_statement(separation_ratio: float, n_physical: int, disagreements
             "rescued_by_stabilisation": [float(f) for f in rescued],
             "excluded_out_of_band": int(disagreements.get("excluded_out_of_band", 0)),
             "excluded_unstable": int(disagreements.get("excluded_unstable", 0)),
-            "below_residual": [float(f) for f in below]}
+            "below_residual": [float(f) for f in below],
+            "unresolved": [float(f) for f in unresolved],
+            "marginal_detection": [float(f) for f in marginal], "extra_in_answer": extra,
+            "mains_hum": [float(f) for f in hum],
+            "noise_source": src}
