@@ -25,7 +25,7 @@ import numpy as np
 
 from fnsi_lab.daq.formats.dof import parse_node_direction, quantity_from_unit
 from fnsi_lab.daq.formats.errors import LabFileError
-from fnsi_lab.daq.formats.table import LabChannel, LabTable, rate_from_increment
+from fnsi_lab.daq.formats.table import LabChannel, LabTable, rate_from_times, require_finite
 
 _UNIT_RE = re.compile(r"^(?P<name>.*?)\s*[\[(](?P<unit>[^\])]*)[\])]\s*$")
 _TIME_NAMES = {"time", "t", "time_s", "zeit"}
@@ -126,24 +126,13 @@ def read_csv(path: str | os.PathLike[str]) -> LabTable:
     if data.shape[1] != len(names):
         raise LabFileError(f"{p}: {data.shape[1]} columns of data but {len(names)} names in "
                            f"line {start + 1}")
-    bad = ~np.isfinite(data)
-    if bad.any():
-        row, col = (int(i) for i in np.argwhere(bad)[0])
-        raise LabFileError(f"{p}: data row {row + 1}, column {names[col]!r}: {data[row, col]} "
-                           "(fix: remove or repair the gap before importing)")
+    require_finite(data, names, path=p, kind="column")
     rate = header.get("sample_rate_hz")
     first = names[0].lower()
     notes = []
     if first in _TIME_NAMES and units[0] in ("s", ""):
-        t = data[:, 0]
-        steps = np.diff(t)
-        if steps.size and not np.allclose(steps, steps[0], rtol=1e-6, atol=0):
-            k = int(np.argmax(np.abs(steps - steps[0])))
-            raise LabFileError(f"{p}: column {names[0]!r} is not equally spaced (step at data "
-                               f"row {k + 2} is {steps[k]:g} s, first step {steps[0]:g} s)")
-        if steps.size:
-            time_rate = rate_from_increment(float((t[-1] - t[0]) / steps.size), path=p,
-                                            field=f"column {names[0]!r}")
+        if data.shape[0] >= 2:
+            time_rate = rate_from_times(data[:, 0], path=p, field=f"column {names[0]!r}")
             if rate is not None and abs(time_rate - rate) > 1e-6 * rate:
                 raise LabFileError(f"{p}: column {names[0]!r} gives {time_rate:.9g} Hz but "
                                    f"'# sample_rate_hz' says {rate:.9g} Hz")

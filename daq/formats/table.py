@@ -146,3 +146,70 @@ def check_rate(file_rate_hz: float | None, option_rate_hz: float | None, *, path
         raise LabFileError(f"{path}: {field}: the file says {file_rate_hz:.9g} Hz but --fs "
                            f"says {option_rate_hz:.9g} Hz (fix: omit --fs, or correct it)")
     return float(option_rate_hz if option_rate_hz is not None else file_rate_hz)
+
+
+def rate_from_times(times_s: np.ndarray, *, path: str, field: str) -> float:
+    """Sampling rate of an equally spaced time axis (see :func:`rate_from_increment`).
+
+    Raises
+    ------
+    LabFileError
+        Fewer than two times, or steps differing by more than 1e-6 relative.
+    """
+    t = np.asarray(times_s, dtype=float).reshape(-1)
+    steps = np.diff(t)
+    if steps.size == 0:
+        raise LabFileError(f"{path}: {field}: one sample gives no sample rate (fix: --fs HZ)")
+    if not np.allclose(steps, steps[0], rtol=1e-6, atol=0):
+        k = int(np.argmax(np.abs(steps - steps[0])))
+        raise LabFileError(f"{path}: {field}: not equally spaced (step {k + 1} is "
+                           f"{steps[k]:g} s, the first {steps[0]:g} s; fix: resample the data "
+                           "to a constant rate)")
+    return rate_from_increment(float((t[-1] - t[0]) / steps.size), path=path, field=field)
+
+
+def common_rate(rates: list[tuple[str, float]], *, path: str, kind: str) -> float | None:
+    """The one sampling rate of ``(channel, rate)`` pairs (None when empty).
+
+    Raises
+    ------
+    LabFileError
+        Two channels with rates differing by more than 1e-9 relative.
+    """
+    if not rates:
+        return None
+    first, rate = rates[0]
+    for name, r in rates[1:]:
+        if abs(r - rate) > 1e-9 * rate:
+            raise LabFileError(f"{path}: {kind} {name!r}: sample rate {r:.9g} Hz but {kind} "
+                               f"{first!r} has {rate:.9g} Hz (fix: export one sample rate)")
+    return rate
+
+
+def stack_columns(columns: list[np.ndarray], names: list[str], *, path: str,
+                  kind: str) -> np.ndarray:
+    """Channels side by side, ``(n_samples, n_channels)`` float64, all finite.
+
+    Raises
+    ------
+    LabFileError
+        Columns of different lengths, or a NaN/infinite sample (channel and index named).
+    """
+    lengths = [len(c) for c in columns]
+    if len(set(lengths)) > 1:
+        odd = next(i for i, n in enumerate(lengths) if n != lengths[0])
+        raise LabFileError(f"{path}: {kind} {names[odd]!r} has {lengths[odd]} samples but "
+                           f"{names[0]!r} has {lengths[0]} (fix: export the {kind}s of one "
+                           "acquisition only)")
+    data = np.column_stack([np.asarray(c, dtype=np.float64) for c in columns])
+    require_finite(data, names, path=path, kind=kind)
+    return data
+
+
+def require_finite(data: np.ndarray, names: list[str], *, path: str, kind: str) -> None:
+    """Raise naming the first NaN/infinite sample of ``data`` (n_samples, n_channels)."""
+    bad = ~np.isfinite(data)
+    if bad.any():
+        row, col = (int(i) for i in np.argwhere(bad)[0])
+        raise LabFileError(f"{path}: {kind} {names[col]!r}: sample {row} is {data[row, col]} "
+                           "(fix: remove or repair the gap before importing)")

@@ -20,7 +20,8 @@ import numpy as np
 
 from fnsi_lab.daq.formats.dof import parse_node_direction, quantity_from_unit
 from fnsi_lab.daq.formats.errors import LabFileError
-from fnsi_lab.daq.formats.table import LabChannel, LabTable, rate_from_increment
+from fnsi_lab.daq.formats.table import (LabChannel, LabTable, common_rate, rate_from_increment,
+                                        rate_from_times, stack_columns)
 
 _TIME_NAMES = {"time", "t", "time_s", "zeit"}
 
@@ -105,35 +106,12 @@ def read_tdms(path: str | os.PathLike[str]) -> LabTable:
     if not columns:
         raise LabFileError(f"{p}: no numeric channel in the TDMS file (groups: "
                            f"{[g.name for g in tdms.groups()]})")
-    lengths = {c.name: len(x) for c, x in zip(channels, columns)}
-    if len(set(lengths.values())) > 1:
-        first = channels[0].name
-        odd = next(n for n, k in lengths.items() if k != lengths[first])
-        raise LabFileError(f"{p}: channel {odd!r} has {lengths[odd]} samples but {first!r} has "
-                           f"{lengths[first]} (fix: export channels of one acquisition only)")
-    rate = None
-    if rates:
-        first_name, rate = rates[0]
-        for name, r in rates[1:]:
-            if abs(r - rate) > 1e-9 * rate:
-                raise LabFileError(f"{p}: channel {name!r}: wf_increment gives {r:.9g} Hz but "
-                                   f"channel {first_name!r} {rate:.9g} Hz (fix: export channels "
-                                   "of one sample rate)")
-    elif time_column is not None:
-        name, t = time_column
-        if len(t) >= 2:
-            steps = np.diff(t)
-            if not np.allclose(steps, steps[0], rtol=1e-6, atol=0):
-                raise LabFileError(f"{p}: time channel {name!r} is not equally spaced "
-                                   "(fix: resample, or give --fs HZ and drop the time channel)")
-            rate = rate_from_increment(float(np.mean(steps)), path=p,
-                                       field=f"time channel {name!r}")
-    data = np.column_stack(columns)
-    bad = ~np.isfinite(data)
-    if bad.any():
-        row, col = (int(i) for i in np.argwhere(bad)[0])
-        raise LabFileError(f"{p}: channel {channels[col].name!r}: sample {row} is {data[row, col]} "
-                           "(fix: remove or repair the gap before importing)")
+    names = [c.name for c in channels]
+    data = stack_columns(columns, names, path=p, kind="channel")
+    rate = common_rate(rates, path=p, kind="channel")
+    if rate is None and time_column is not None:
+        rate = rate_from_times(time_column[1], path=p,
+                               field=f"time channel {time_column[0]!r}")
     scopes = [tdms] + list(tdms.groups())
     return LabTable(
         path=p, format="tdms", data=data, channels=tuple(channels), sample_rate_hz=rate,

@@ -22,7 +22,8 @@ import numpy as np
 
 from fnsi_lab.daq.formats.dof import direction_from_code, quantity_from_unit
 from fnsi_lab.daq.formats.errors import LabFileError
-from fnsi_lab.daq.formats.table import LabChannel, LabTable, rate_from_increment
+from fnsi_lab.daq.formats.table import (LabChannel, LabTable, common_rate, rate_from_increment,
+                                        rate_from_times, stack_columns)
 
 #: Ordinate specific data types of dataset 58 (record 9, field 1) that fnsi-lab knows.
 UFF_DATA_TYPES = {8: "displacement", 11: "velocity", 12: "acceleration", 9: "force",
@@ -96,35 +97,17 @@ def read_uff58(path: str | os.PathLike[str]) -> LabTable:
                                                     path=p, field=f"record {name!r}: abscissa "
                                                                   "increment")))
         else:
-            t = np.asarray(dset.get("x"), float)
-            steps = np.diff(t)
-            if steps.size == 0 or not np.allclose(steps, steps[0], rtol=1e-6, atol=0):
-                raise LabFileError(f"{where}: abscissa values are not equally spaced "
-                                   "(fix: resample the record)")
-            rates.append((name, rate_from_increment(float((t[-1] - t[0]) / steps.size),
-                                                    path=p, field=f"record {name!r}: abscissa")))
+            rates.append((name, rate_from_times(np.asarray(dset.get("x"), float), path=p,
+                                                field=f"record {name!r}: abscissa")))
         channels.append(LabChannel(name=name, unit=unit, quantity=quantity,
                                    node=str(node) if node else "", direction=direction))
         columns.append(np.asarray(values, dtype=np.float64))
     if not columns:
         raise LabFileError(f"{p}: no time record (dataset 58 with function type 1) in the file "
                            f"(datasets found: {sorted({int(t) for t in types})})")
-    first, rate = rates[0]
-    for name, r in rates[1:]:
-        if abs(r - rate) > 1e-9 * rate:
-            raise LabFileError(f"{p}: record {name!r}: sample rate {r:.9g} Hz but record "
-                               f"{first!r} has {rate:.9g} Hz (fix: export one sample rate)")
-    lengths = [len(c) for c in columns]
-    if len(set(lengths)) > 1:
-        odd = next(i for i, n in enumerate(lengths) if n != lengths[0])
-        raise LabFileError(f"{p}: record {channels[odd].name!r} has {lengths[odd]} samples but "
-                           f"{first!r} has {lengths[0]} (fix: export records of one acquisition)")
-    data = np.column_stack(columns)
-    bad = ~np.isfinite(data)
-    if bad.any():
-        row, col = (int(i) for i in np.argwhere(bad)[0])
-        raise LabFileError(f"{p}: record {channels[col].name!r}: sample {row} is "
-                           f"{data[row, col]} (fix: remove or repair the gap before importing)")
+    names = [c.name for c in channels]
+    rate = common_rate(rates, path=p, kind="record")
+    data = stack_columns(columns, names, path=p, kind="record")
     return LabTable(path=p, format="uff58", data=data, channels=tuple(channels),
                     sample_rate_hz=rate, properties={"datasets": len(types)},
                     notes=tuple(notes))
