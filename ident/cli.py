@@ -89,6 +89,55 @@ def _print_summary(res: dict, out=None) -> None:
         print(f"  warning: {w}", file=out)
 
 
+def objective_sketch(values, objective, width_levels: str = "_.-=+*#") -> str:
+    """One-line text plot of an objective profile (log scale, low = good).
+
+    Parameters
+    ----------
+    values, objective : array_like, shape (n_points,)
+        Parameter values (sorted) and the relative model error at each.
+
+    Returns
+    -------
+    str
+        ``'0.0912 _.-=#... 4.47'``: one character per point, the lowest ``_``.
+    """
+    v = np.log10(np.maximum(np.asarray(objective, float), 1e-300))
+    ok = np.isfinite(v)
+    if not ok.any():
+        return ""
+    lo, hi = float(v[ok].min()), float(v[ok].max())
+    span = hi - lo if hi > lo else 1.0
+    n = len(width_levels) - 1
+    chars = "".join(width_levels[int(round(n * (x - lo) / span))] if np.isfinite(x) else "?"
+                    for x in v)
+    return f"{values[0]:.4g} {chars} {values[-1]:.4g}"
+
+
+def _print_parameter_summary(res: dict, out=None) -> None:
+    """Basis parameters estimated from the data (the JSON dict's ``nonlinearities``)."""
+    out = out or sys.stdout
+    search = res.get("parameter_search")
+    if not search:
+        return
+    print(f"basis parameters from the data (order {search['order']}, "
+          f"{search['n_evaluations']} fits, {search['timings_s']['total']:.2f} s):", file=out)
+    for nl in res["nonlinearities"]:
+        for par, ob in (nl.get("objective") or {}).items():
+            value = (nl["exponent"] if par == "exponent" else
+                     nl["clearances"][0 if par in ("g_neg", "clearance") else 1])
+            std = ob.get("std")
+            unc = f" +- {std:.2g}" if std is not None and np.isfinite(std) else ""
+            err = ""
+            errs = nl.get("clearance_error_percent")
+            if errs and par != "exponent":
+                e = errs[0 if par in ("g_neg", "clearance") else 1]
+                err = f" (error {e:+.3f} % vs the recording's truth)" if e is not None else ""
+            print(f"  {nl['name']} {par} = {value:.6g}{unc}{err}", file=out)
+            print(f"    model error vs {par}: {objective_sketch(ob['values'], ob['relative_model_error'])}"
+                  f"  (min {np.nanmin(ob['relative_model_error']):.3g})", file=out)
+
+
 def _print_auto_summary(res: Any, out=None, warnings: list | tuple = ()) -> None:
     """Summary of a robust-pipeline result (:class:`~fnsi_lab.ident.auto_result.AutoResult`)."""
     out = out or sys.stdout
@@ -154,6 +203,7 @@ def run_ident(args: argparse.Namespace) -> int:
                                    progress=show)
     res = result.to_json()
     if not args.quiet and args.json_out != "-":
+        _print_parameter_summary(res)
         if result.auto is not None:
             _print_auto_summary(result.auto, warnings=res["warnings"])
         else:

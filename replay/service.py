@@ -725,6 +725,12 @@ def auto_view(update: ServiceUpdate) -> dict[str, Any]:
                                 "reduced": ai.coefficient_curves.get("reduced"),
                                 "exact": ai.exact_coefficients,
                                 "excited": data.excited}
+    search = ai.identification.session.parameter_search   # clearances/exponents from the data
+    if search is not None and search.estimates:
+        view["parameters"] = {"profiles": [
+            {"label": e.unknown.label, "values": e.profile_values,
+             "objective": e.profile_objective, "estimate": e.value, "std": e.std}
+            for e in search.estimates]}
     kept_model = res.reduced if res.reduced is not None else res.model
     modes = kept_model.poles.modes()
     with np.errstate(divide="ignore", invalid="ignore"):

@@ -454,6 +454,42 @@ def log_status(rec: rr.RecordingStream, acq_time_s: float, values: Mapping[str, 
                          columns=rr.TextLog.columns(text=[message], level=[level]))
 
 
+def log_parameter_objective(rec: rr.RecordingStream, profiles: Sequence[Mapping[str, Any]], *,
+                            update: int | None = None) -> None:
+    """Model error against each basis parameter estimated from the data, estimate marked.
+
+    Parameters
+    ----------
+    profiles : sequence of mapping
+        One per parameter: ``label`` (e.g. ``'NC2-Z.g_pos'``), ``values`` (parameter values,
+        shape (n,)), ``objective`` (relative model error at each, shape (n,), > 0),
+        ``estimate`` (float) and optionally ``std``.
+    update : int, optional
+        Identification update (shown in the titles).
+    """
+    panels = []
+    for k, prof in enumerate(profiles):
+        x = np.asarray(prof["values"], dtype=float).ravel()
+        y = np.asarray(prof["objective"], dtype=float).ravel()
+        order = np.argsort(x)
+        x, y = x[order], y[order]
+        ok = np.isfinite(y) & (y > 0)
+        est = float(prof["estimate"])
+        std = prof.get("std")
+        unc = f" +- {std:.2g}" if std is not None and np.isfinite(std) else ""
+        panel = Panel(f"p{k}", _title(f"{prof['label']} = {est:.5g}{unc}", update),
+                      Axis.fit(str(prof["label"]), x[ok], include=[est]),
+                      Axis.fit("relative model error", y[ok], log=True))
+        panel.series.append(Series("objective", "model error", x[ok], y[ok], _BLUE, width=1.5,
+                                   values={"parameter": x, "relative_model_error": y}))
+        panel.series.append(Series("points", "", x[ok], y[ok], _BLUE, kind="points", width=2.0,
+                                   legend=False))
+        panel.vlines.append((est, "estimate", _RED))
+        panels.append(panel)
+    if panels:
+        Figure(rec, paths.PARAMETERS).log(stack(panels, len(panels)))
+
+
 def log_identification(rec: rr.RecordingStream, view: Mapping[str, Any], *,
                        update: int | None = None) -> None:
     """Log every subtree present in a plain-dict identification result.
@@ -464,8 +500,8 @@ def log_identification(rec: rr.RecordingStream, view: Mapping[str, Any], *,
         Optional keys, each a dict of the keyword arguments of one ``log_*`` function:
         ``frf`` (:func:`log_frf`, with ``frequency_hz``), ``stabilisation``,
         ``criterion`` (:func:`log_information_criterion`), ``mdi``, ``coefficients``,
-        ``convergence`` (with ``update``, ``acq_time_s``, ``values``), and ``summary``
-        (markdown text). The stabilisation diagram marks the criterion's selected order.
+        ``convergence`` (with ``update``, ``acq_time_s``, ``values``), ``parameters``
+        (:func:`log_parameter_objective`), and ``summary`` (markdown text). The stabilisation diagram marks the criterion's selected order.
     update : int, optional
         Identification update, shown in the figure titles (each update replaces the
         figures; the per-update estimates stay on the ``update`` timeline).
@@ -483,6 +519,8 @@ def log_identification(rec: rr.RecordingStream, view: Mapping[str, Any], *,
         log_mdi(rec, **view["mdi"], update=update)
     if "coefficients" in view:
         log_coefficients(rec, **view["coefficients"], update=update)
+    if "parameters" in view:
+        log_parameter_objective(rec, **view["parameters"], update=update)
     if "convergence" in view:
         log_convergence(rec, **view["convergence"])
     if "summary" in view:

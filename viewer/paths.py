@@ -50,6 +50,9 @@ MDI_THRESHOLD = "/ident/mdi/threshold"
 #: Nonlinear coefficients against frequency: one panel per estimated coefficient with
 #: ``full`` (before reduction), ``reduced`` (after) and ``exact`` (when known).
 COEFFICIENTS = "/ident/coefficients"
+#: Basis parameters estimated from the data (clearances, exponents): the FNSI model error
+#: against each parameter, the estimate marked; one panel per parameter.
+PARAMETERS = "/ident/parameters"
 #: Estimates against the update number (pole frequencies, dampings, coefficient means).
 CONVERGENCE = "/ident/convergence"
 #: Markdown table of the latest result (the paper's Table 2).
