@@ -149,9 +149,12 @@ class TriggeredSource(Source):
 
     def describe(self) -> dict[str, Any]:
         """The inner source's metadata plus ``trigger`` (the settings)."""
-        out = dict(self.inner.describe())
-        out["trigger"] = self.trigger.to_dict()
-        return out
+        return {**self.inner.describe(), "trigger": self.trigger.to_dict()}
+
+    def describe_at_start(self) -> dict[str, Any]:
+        """What the recording stores when it opens: the inner source's, plus ``trigger``."""
+        at_start = getattr(self.inner, "describe_at_start", self.inner.describe)
+        return {**at_start(), "trigger": self.trigger.to_dict()}
 
     # ------------------------------------------------------------------ reading
     def _read_block(self, timeout: float | None) -> Block | None:
@@ -223,8 +226,9 @@ class TriggeredSource(Source):
                           "value": float(block.data[hit, self._column]),
                           "pre_samples": int(trigger_sample - first),
                           "realization": int(block.realization)}
-        self._emit_event("trigger", time_ns=trigger_ns,
-                         **{k: v for k, v in self.triggered.items() if k != "time_ns"})
+        # an event for the recording, not a problem: not counted in stats.problems
+        self._events.append(SourceEvent(time_ns=trigger_ns, kind="trigger", detail={
+            k: v for k, v in self.triggered.items() if k != "time_ns"}))
         return self._rewrap(block, 0, data=data, t0_ns=t0)
 
 
