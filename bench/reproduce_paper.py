@@ -138,7 +138,7 @@ def smallsat_frequency_data(level: str = "100N", n_channels: int = 39, snr_db: f
 
 # ------------------------------------------------------------------------------ coefficients
 def coefficient_curves(model, data, band=EXC_BAND):
-    """``c_a(f)`` on the excited lines by signed reciprocity (spec §2.3), per basis column.
+    """``c_a(f)`` on the excited lines by signed reciprocity (docs/method.md §2.3), per basis column.
 
     Returns ``(f, {name: c(f) complex})``.
     """

@@ -16,7 +16,7 @@ damping as a ratio, SI units otherwise. DFT: numpy sign convention
 ``X(k) = sum_t x(t) exp(-j 2 pi k t / N)``, so the discrete-time frequency variable of line
 ``k`` is ``z_k = exp(j 2 pi k / N)``.
 
-Extended input (spec §1.1): ``e = [p; h_1; ...; h_s]`` with ``+h_a`` (Noël/seed sign). A
+Extended input (docs/method.md §1.1): ``e = [p; h_1; ...; h_s]`` with ``+h_a`` (Noël/seed sign). A
 basis function ``h_a`` acts on the signed combination ``delta_a = L_a^T q`` of measured
 channels; the element force on the structure is ``c_a h_a(delta_a) L_a``.
 
@@ -25,7 +25,7 @@ Modules
 ``periodic``      periodic records -> :class:`FrequencyData` (averaging, noise covariance)
 ``basis``         nonlinear basis functions and extended input
 ``fnsi``          one QR + one SVD, every order; B/D least squares; CT conversion; FRFs
-``coefficients``  nonlinear coefficients by signed reciprocity (spec §2.3)
+``coefficients``  nonlinear coefficients by signed reciprocity (docs/method.md §2.3)
 ``config``, ``io``, ``cli``  the ``fnsi-lab ident`` command
 
 ``ident`` depends on numpy, scipy and :mod:`fnsi_lab.errors`/:mod:`fnsi_lab.validate` only.

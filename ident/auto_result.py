@@ -207,7 +207,7 @@ class AutoResult:
 
 def confidence_statement(separation_ratio: float, n_physical: int, disagreements: dict, *,
                          ambiguous_ratio: float = 2.0, clear_ratio: float = 10.0) -> dict:
-    """How sure the physical/spurious split is (spec §7.4, §8.5).
+    """How sure the physical/spurious split is (docs/method.md §7.4, §8.5).
 
     Parameters
     ----------

@@ -1,4 +1,4 @@
-"""Nonlinear basis functions ``h_a`` and the extended input (spec §1.1, §1.2, §2.5).
+"""Nonlinear basis functions ``h_a`` and the extended input (docs/method.md §1.1, §1.2, §2.5).
 
 Each :class:`Nonlinearity` acts on a **signed** combination of measured output channels,
 ``delta = L^T q`` (``L = {channel: weight}``; ``+1`` at DOF j and ``-1`` at DOF k for an

@@ -1,4 +1,4 @@
-"""Nonlinear coefficients ``c_a(w)`` from the extended FRF (spec §2.3, §8.1).
+"""Nonlinear coefficients ``c_a(w)`` from the extended FRF (docs/method.md §2.3, §8.1).
 
 By Maxwell-Betti reciprocity (``H = H^T``), for a force at DOF ``i`` (measured, output row
 ``r_i``) and a basis function acting on ``delta_a = L_a^T q``::
@@ -54,7 +54,7 @@ class CoefficientSpectra:
     denominator : complex ndarray, shape (F, n_drive, s)
         ``sum_d L_a(d) G_p(r_d, w; col i)``.
     excited : bool ndarray, shape (F,)
-        Lines where the force has energy (headline statistics use these, spec §8.1).
+        Lines where the force has energy (headline statistics use these, docs/method.md §8.1).
     truth : tuple of (float or None)
         Known values (simulations), length ``s``.
     """
@@ -70,7 +70,7 @@ class CoefficientSpectra:
 
 @dataclass(frozen=True)
 class CoefficientSummary:
-    """Spectral statistics of one coefficient (seed Table 2; spec §2.3, §8.1).
+    """Spectral statistics of one coefficient (seed Table 2; docs/method.md §2.3, §8.1).
 
     Attributes
     ----------
@@ -153,7 +153,7 @@ def _resolve_driving_points(driving_point, input_names: Sequence[str],
         if out not in output_names:
             raise NotIdentifiableError(
                 f"driving point {out!r} of input {inp!r} is not a measured output: c_a needs the "
-                f"response at the excited DOF (reciprocity, spec §2.3); outputs: {list(output_names)}")
+                f"response at the excited DOF (reciprocity, docs/method.md §2.3); outputs: {list(output_names)}")
         pairs.append((list(input_names).index(inp), list(output_names).index(out)))
     if not pairs:
         raise NotIdentifiableError("no force has a measured driving point")
@@ -164,7 +164,7 @@ def nonlinear_coefficients(model: StateSpaceModel, data: FrequencyData | None,
                            basis: Sequence[Nonlinearity], *,
                            driving_point: str | Mapping[str, str | None],
                            frequencies_hz: np.ndarray | None = None) -> CoefficientSpectra:
-    """Nonlinear coefficients by the signed reciprocity formula (spec §2.3).
+    """Nonlinear coefficients by the signed reciprocity formula (docs/method.md §2.3).
 
     Parameters
     ----------
@@ -207,7 +207,7 @@ def nonlinear_coefficients(model: StateSpaceModel, data: FrequencyData | None,
             vec = nl.location_vector(out_names)
         except ChannelError as exc:
             raise NotIdentifiableError(f"{exc}; c_a needs every DOF of L_a measured "
-                                       "(spec §2.3)") from None
+                                       "(docs/method.md §2.3)") from None
         Ls.extend([vec] * len(nl.coefficient_names))
     L = np.stack(Ls, axis=1) if Ls else np.zeros((len(out_names), 0))  # (p, s)
     pairs = _resolve_driving_points(driving_point, model.input_names[:m], out_names)
@@ -302,7 +302,7 @@ def summarize_coefficients(spectra: CoefficientSpectra, *,
     truth : mapping name -> float, optional
         Known values; overrides ``spectra.truth``.
     eps : float
-        Lines with ``|den| < eps max|den|`` are left out of the LS constant (spec §2.3).
+        Lines with ``|den| < eps max|den|`` are left out of the LS constant (docs/method.md §2.3).
     antiresonance_floor : float
         Excited lines with ``|den| < antiresonance_floor * median |den|`` (antiresonances of
         the denominator ``L_a^T G_p``, where ``c_a = num/den`` divides the numerator's error
@@ -318,7 +318,7 @@ def summarize_coefficients(spectra: CoefficientSpectra, *,
 
     Notes
     -----
-    Spec §8.1: above the excitation band the identified ``G_p`` is an extrapolation and the
+    docs/method.md §8.1: above the excitation band the identified ``G_p`` is an extrapolation and the
     ratio is ill conditioned, so the headline statistics use the excited lines only; the
     processed-band ones are reported in ``band`` as a diagnostic.
     """
@@ -362,7 +362,7 @@ def coefficient_spread(spectra: CoefficientSpectra) -> np.ndarray:
     Notes
     -----
     A physically consistent model has ``G_a(r_i, w) = -c_a L_a^T G_p(w)`` with a real,
-    frequency-independent ``c_a`` (spec §2.3), so ``rho_a = 0``; the seed judges orders by the
+    frequency-independent ``c_a`` (docs/method.md §2.3), so ``rho_a = 0``; the seed judges orders by the
     same property (flat ``Re c_a``, large ``|Re/Im|``; its Fig. 6 and Table 2). The residual is
     weighted by ``|den|`` like the least-squares constant, so the antiresonances of the
     denominator (where ``c_a(w)`` has genuine peaks) do not dominate. On the simulated
@@ -391,13 +391,14 @@ def spread_function(data: FrequencyData, basis: Sequence[Nonlinearity], *,
 
     ``rho`` is the geometric mean over the basis columns of :func:`coefficient_spread`,
     evaluated on the excited lines of ``data``. None when there is no basis, no driving
-    point, or a channel of some ``L_a`` is not measured (spec §2.3).
+    point, or a channel of some ``L_a`` is not measured (docs/method.md §2.3).
     """
     basis = tuple(basis)
     if not basis or driving_point is None or not np.any(data.excited):
         return None
-    f_exc = data.frequencies_hz[np.asarray(data.excited, bool)]
-    try:  # every channel of every L_a and the driving point must be measured (spec §2.3)
+    # unique lines: stacked realisations repeat them, and c_a is a function of frequency
+    f_exc = np.unique(data.frequencies_hz[np.asarray(data.excited, bool)])
+    try:  # every channel of every L_a and the driving point must be measured (docs/method.md §2.3)
         for nl in basis:
             nl.location_vector(list(data.output_names))
         _resolve_driving_points(driving_point, data.input_names, data.output_names)

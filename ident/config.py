@@ -19,7 +19,7 @@ field and the fix; unknown keys are rejected (typos). Example (3-DOF chain, rela
         truth: [2.0e4, 1.5e4]          # optional, for error_percent
     order: 6
     max_order: 20                # largest order of the decomposition (default: order)
-    block_rows: null             # default from p and max_order (spec §8.2)
+    block_rows: null             # default from p and max_order (docs/method.md §8.2)
     d_zero: null                 # default false: estimate D (see IdentConfig.d_zero_for)
     weighting: auto              # auto | none | noise
     time_base: auto              # auto | band-limited (anti-aliased) | zoh (held input) | bilinear

@@ -25,7 +25,7 @@ class ChannelError(IdentError, KeyError):
 class NotIdentifiableError(IdentError):
     """The requested quantity is not available from this measurement set-up.
 
-    Example: the nonlinear coefficient needs the driving-point output (spec §2.3).
+    Example: the nonlinear coefficient needs the driving-point output (docs/method.md §2.3).
     """
 
 

@@ -1,4 +1,4 @@
-"""FNSI core: one QR and one SVD, then every model order (spec §1.3-1.7, §2.1-2.2, §3).
+"""FNSI core: one QR and one SVD, then every model order (docs/method.md §1.3-1.7, §2.1-2.2, §3).
 
 Pipeline (each a plain function over arrays, returning frozen dataclasses)::
 
@@ -40,7 +40,7 @@ TIME_BASES: tuple[str, ...] = ("band-limited", "zoh", "bilinear")
 # ---------------------------------------------------------------------------- dataclasses
 @dataclass(frozen=True, eq=False)
 class SubspaceDecomposition:
-    """Result of the order-independent subspace step (spec §1.3, §1.7).
+    """Result of the order-independent subspace step (docs/method.md §1.3, §1.7).
 
     Attributes
     ----------
@@ -93,7 +93,7 @@ class SubspaceDecomposition:
 
 @dataclass(frozen=True, eq=False)
 class Poles:
-    """Eigenvalues of a model, one entry per eigenvalue of ``A`` (spec §2.1).
+    """Eigenvalues of a model, one entry per eigenvalue of ``A`` (docs/method.md §2.1).
 
     Attributes
     ----------
@@ -145,7 +145,7 @@ class Poles:
 
 @dataclass(frozen=True, eq=False)
 class StateSpaceModel:
-    """Identified linear model of the extended input ``e = [p; h]`` (spec §1.1).
+    """Identified linear model of the extended input ``e = [p; h]`` (docs/method.md §1.1).
 
     ``B`` and ``D`` are in physical basis units (the ``sigma`` scaling is undone).
 
@@ -157,8 +157,8 @@ class StateSpaceModel:
         Discrete-time matrices, shapes (n, n), (n, m_e), (p, n), (p, m_e).
     a_c, b_c, c_c, d_c : ndarray
         Continuous-time matrices per ``time_base``: impulse-invariant reading of band-limited
-        data (:func:`band_limited_to_continuous`), exact ZOH inverse (spec §1.5) or exact
-        bilinear inverse (spec §1.6).
+        data (:func:`band_limited_to_continuous`), exact ZOH inverse (docs/method.md §1.5) or exact
+        bilinear inverse (docs/method.md §1.6).
     sample_rate_hz : float
     n_inputs : int
         ``m`` (forces); the other ``m_e - m`` columns are basis functions.
@@ -304,10 +304,10 @@ def _cov_for_svd(data: FrequencyData, weighted: bool) -> np.ndarray | None:
 
 # ---------------------------------------------------------------------------- subspace step
 def default_block_rows(n_outputs: int, max_order: int, n_lines: int, n_extended_inputs: int) -> int:
-    """Block rows ``i`` from ``p`` and ``n_max`` (spec §1.3 size rules, §8.2).
+    """Block rows ``i`` from ``p`` and ``n_max`` (docs/method.md §1.3 size rules, §8.2).
 
     ``i = max(ceil(n_max / p) + 1, ceil(max(3 n_max, 120) / p), 20)``: few channels need many
-    block rows (spec §8.2: 3 outputs needed i = 60), and at least 20 (the spec's default):
+    block rows (docs/method.md §8.2: 3 outputs needed i = 60), and at least 20 (docs/method.md §8.2):
     with 39 SmallSat outputs, i = 5 made 27-39 of the 59 orders unstable and held 9 of the
     11 modes at best, i = 20 left 8 unstable and held 10 (docs/robust.md). Capped by the QR
     size rule ``2F >= i (m_e + p)``.
@@ -632,7 +632,7 @@ def model_at_order(decomp: SubspaceDecomposition, data: FrequencyData, order: in
     order : int
         ``1 <= n <= decomp.max_order``.
     d_zero : bool
-        Constrain ``D = 0`` (displacement/velocity outputs, spec §1.4).
+        Constrain ``D = 0`` (displacement/velocity outputs, docs/method.md §1.4).
 
     Returns
     -------
@@ -640,7 +640,7 @@ def model_at_order(decomp: SubspaceDecomposition, data: FrequencyData, order: in
 
     Notes
     -----
-    Spec §1.3 shift invariance: ``C = Gamma[0:p]``, ``A = Gamma[0:(i-1)p]^+ Gamma[p:ip]``
+    docs/method.md §1.3 shift invariance: ``C = Gamma[0:p]``, ``A = Gamma[0:(i-1)p]^+ Gamma[p:ip]``
     (least squares; each block row whitened by ``decomp.shift_weight`` when weighted);
     ``B``, ``D`` by :func:`estimate_bd` (§1.4); CT by the exact ZOH inverse (§1.5) or the
     bilinear inverse (§1.6) per ``data.time_base``. The models are nested in the state basis, not in their poles (§1.7).
@@ -660,7 +660,7 @@ def model_at_order(decomp: SubspaceDecomposition, data: FrequencyData, order: in
 
 def models_for_orders(decomp: SubspaceDecomposition, data: FrequencyData, orders, *,
                       d_zero: bool = False) -> list[StateSpaceModel]:
-    """:func:`model_at_order` for each order (spec §1.7)."""
+    """:func:`model_at_order` for each order (docs/method.md §1.7)."""
     return [model_at_order(decomp, data, int(n), d_zero=d_zero) for n in orders]
 
 
@@ -708,7 +708,7 @@ def estimate_bd(a_d: np.ndarray, c_d: np.ndarray, data: FrequencyData, *, d_zero
 
     Notes
     -----
-    Spec §1.4. The model output is linear in ``(B, D)``. In modal coordinates
+    docs/method.md §1.4. The model output is linear in ``(B, D)``. In modal coordinates
     (``A = Phi diag(mu) Phi^{-1}``, ``C_hat = C Phi``, ``B_hat = Phi^{-1} B``),
     ``Y_k = C_hat diag(w_k) B_hat E_k + D E_k`` with ``w_k = 1/(z_k - mu)``, so the normal
     equations are ``sum_k (conj(E_k) E_k^T) (x) (diag(conj w~_k) M_k diag(w~_k))`` with
@@ -786,6 +786,12 @@ def _estimate_bd(a_d, c_d, data, *, d_zero, weighted, modal):
         b_d, d_r = _estimate_bd(a_d, W.T @ c_d, reduced, d_zero=d_zero, weighted=False,
                                 modal=modal)
         return b_d, W @ d_r + d_perp
+    if Q is None and modal[2]:
+        from fnsi_lab.ident.fast_bd import fast_estimate_bd, line_sums
+        if line_sums(data) is not None:  # stacked realisations: per-line sums, same answer
+            bd = fast_estimate_bd(a_d, c_d, data, d_zero=d_zero)
+            if bd is not None:
+                return bd
     mu, phi, ok = modal
     E, Y = data.E, data.Y
     nq = n + (0 if d_zero else p)
@@ -926,7 +932,7 @@ def _transfer(a, b, c, d, s, *, modal=None) -> np.ndarray:
 # ---------------------------------------------------------------------------- CT, poles
 def discrete_to_continuous(a_d: np.ndarray, b_d: np.ndarray, sample_rate_hz: float, *,
                            _modal_dt=None) -> tuple[np.ndarray, np.ndarray]:
-    """Exact inverse of zero-order hold, pole by pole (spec §1.5).
+    """Exact inverse of zero-order hold, pole by pole (docs/method.md §1.5).
 
     Parameters
     ----------
@@ -1013,7 +1019,7 @@ def band_limited_to_continuous(a_d, b_d, c_d, d_d, sample_rate_hz: float, *, _mo
 def compute_poles(a_d: np.ndarray, c_d: np.ndarray, sample_rate_hz: float, *,
                   time_base: str = "zoh", bilinear_period_s: float | None = None,
                   _modal_dt=None) -> Poles:
-    """Poles and output mode shapes from ``A_d`` (spec §1.5, §2.1).
+    """Poles and output mode shapes from ``A_d`` (docs/method.md §1.5, §2.1).
 
     Parameters
     ----------
@@ -1056,7 +1062,7 @@ def compute_poles(a_d: np.ndarray, c_d: np.ndarray, sample_rate_hz: float, *,
 
 
 def bilinear_to_continuous(a_d, b_d, c_d, d_d, period_s: float):
-    """Inverse of the bilinear (Tustin) map (spec §1.6), exact.
+    """Inverse of the bilinear (Tustin) map (docs/method.md §1.6), exact.
 
     ``alpha = 2/T``, ``N_d = (A_d + I)^{-1}``: ``A_c = alpha N_d (A_d - I)``,
     ``B_c = (2/sqrt T) N_d B_d``, ``C_c = (2/sqrt T) C_d N_d``, ``D_c = D_d - C_d N_d B_d``;
@@ -1171,7 +1177,7 @@ def steady_state_output(model: StateSpaceModel, data: FrequencyData) -> np.ndarr
 
     Notes
     -----
-    Spec §3: the DFT of the unique N-periodic solution of ``x(t+1) = A x(t) + B e(t)`` is
+    docs/method.md §3: the DFT of the unique N-periodic solution of ``x(t+1) = A x(t) + B e(t)`` is
     ``X(k) = (z_k I - A)^{-1} B E(k)``, so this equals the seed's steady-state simulation
     (Eq. 6-7) exactly; the information criterion uses it as its oracle. Unstable models still
     give the periodic solution (exclude them upstream).
@@ -1181,7 +1187,7 @@ def steady_state_output(model: StateSpaceModel, data: FrequencyData) -> np.ndarr
 
 
 def frf(model: StateSpaceModel, frequencies_hz: np.ndarray) -> np.ndarray:
-    """Extended FRF ``H_E(w)`` (spec §2.2).
+    """Extended FRF ``H_E(w)`` (docs/method.md §2.2).
 
     Parameters
     ----------

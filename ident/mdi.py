@@ -1,6 +1,6 @@
 """Modal dominancy index (MDI), automatic threshold and separation ratio.
 
-Pure functions over arrays (spec §5 and §7; seed paper §4, Eq. 13-20). Conventions:
+Pure functions over arrays (docs/method.md §5 and §7; seed paper §4, Eq. 13-20). Conventions:
 continuous-time poles ``lam`` in rad/s, bands in rad/s unless the name says ``_hz``, modal
 output shapes ``c_hat`` of shape ``(n_out, n_poles)``, modal input rows ``b_hat`` of shape
 ``(n_poles, n_in)``.
@@ -13,7 +13,7 @@ Norms offered (all squared, Eq. 17 is a squared norm):
 
 ``h2`` (default)
     Exact frequency-restricted H2 norm (Eq. 16) of the modal error of the **conjugate pair**,
-    cross term included (spec §5.2). A real pole uses the single-pole value.
+    cross term included (docs/method.md §5.2). A real pole uses the single-pole value.
 ``seed``
     Our reading of the seed's Eq. 18 (near-side arctan only, doubled).
 ``h2_single``
@@ -62,7 +62,7 @@ def _band(band: Sequence[float]) -> tuple[float, float]:
 # Closed forms for one residue
 # --------------------------------------------------------------------------------------
 def _p(beta, sigma, w1, w2):
-    """``P(beta) = atan((w2 - beta)/sigma) - atan((w1 - beta)/sigma)`` (spec §5.2)."""
+    """``P(beta) = atan((w2 - beta)/sigma) - atan((w1 - beta)/sigma)`` (docs/method.md §5.2)."""
     return np.arctan((w2 - beta) / sigma) - np.arctan((w1 - beta) / sigma)
 
 
@@ -85,7 +85,7 @@ def frh2_single(r2, lam, band):
 
     Notes
     -----
-    Seed Eq. 16-17 taken literally for one pole; spec §5.2. ``|sigma|`` is used, so the
+    Seed Eq. 16-17 taken literally for one pole; docs/method.md §5.2. ``|sigma|`` is used, so the
     value is the (finite) band integral for an unstable pole too.
     """
     w1, w2 = _band(band)
@@ -113,7 +113,7 @@ def frh2_pair(r2, cross, lam, band):
     -------
     float or ndarray
         ``(1/pi) {||R||^2 [P(b) + P(-b)] / sigma + 2 Re[cross (atan(w2/c) - atan(w1/c)) / c]}``
-        with ``c = -conj(lam)`` (spec §5.2).
+        with ``c = -conj(lam)`` (docs/method.md §5.2).
 
     Notes
     -----
@@ -136,7 +136,7 @@ def frh2_seed(r2, lam, band):
 
     ``(1/pi) ||R||^2 / |Re lam| [atan((w2 - |Im lam|)/|Re lam|) - atan((w1 - |Im lam|)/|Re lam|)]``.
     Equals :func:`frh2_single` for a real pole and is within about 1 % of :func:`frh2_pair`
-    for lightly damped in-band modes (spec §5.2).
+    for lightly damped in-band modes (docs/method.md §5.2).
     """
     w1, w2 = _band(band)
     lam = np.asarray(lam, dtype=complex)
@@ -154,7 +154,7 @@ def hinf_single(rnorm, lam):
 
 
 def hinf_band(rnorm, lam, band):
-    """Band-restricted H-infinity MDI of one pole (spec §5.3).
+    """Band-restricted H-infinity MDI of one pole (docs/method.md §5.3).
 
     ``||R||/|Re lam|`` if ``|Im lam|`` lies in ``[w1, w2]``, else
     ``||R|| / sqrt(sigma^2 + (|beta| - w_edge)^2)`` with ``w_edge`` the nearest band edge.
@@ -201,7 +201,7 @@ def frh2_sum(lam, c_hat, b_hat, band):
     Notes
     -----
     ``(1/2pi) sum_{i,l} (c_i^H c_l)(b_l b_i^H) [I(lam_i, lam_l; w1, w2) + I(...; -w2, -w1)]``
-    with :func:`_int_cross`. Used for split-mode groups (spec §7) and as an oracle for
+    with :func:`_int_cross`. Used for split-mode groups (docs/method.md §7) and as an oracle for
     :func:`frh2_pair` (the two agree to rounding).
     """
     w1, w2 = _band(band)
@@ -284,7 +284,7 @@ def _pair_up(lam, rel_tol=1e-8):
 
 
 def input_weights(E, n_inputs, scaling: InputScaling = "default"):
-    """Column weights for ``b_hat`` (spec §5.2, "input scaling matters").
+    """Column weights for ``b_hat`` (docs/method.md §5.2, "input scaling matters").
 
     Parameters
     ----------
@@ -404,7 +404,7 @@ def modal_dominancy(lam, c_hat, b_hat, band_hz, *, norm: MdiNorm = "h2", weights
 
     Notes
     -----
-    Spec §5: ``||R||_F^2 = ||c||^2 ||b||^2``, ``trace(R^H conj R) = conj((c^T c)(b b^T))``,
+    docs/method.md §5: ``||R||_F^2 = ||c||^2 ||b||^2``, ``trace(R^H conj R) = conj((c^T c)(b b^T))``,
     ``sigma_max(R) = ||c|| ||b||`` for the rank-one residue ``R = c b``.
     """
     _check_choice("norm", norm, MDI_NORMS)
@@ -450,7 +450,7 @@ def modal_dominancy(lam, c_hat, b_hat, band_hz, *, norm: MdiNorm = "h2", weights
 
 
 # --------------------------------------------------------------------------------------
-# Split modes (spec §7 guard rail)
+# Split modes (docs/method.md §7 guard rail)
 # --------------------------------------------------------------------------------------
 def group_split_modes(md: ModalDominancy, lam, c_hat, b_hat, *, weights=None, out_weights=None,
                       freq_tol: float = 0.002, damping_tol: float = 0.5,
@@ -464,7 +464,7 @@ def group_split_modes(md: ModalDominancy, lam, c_hat, b_hat, *, weights=None, ou
     lam, c_hat, b_hat, weights
         As given to :func:`modal_dominancy`.
     freq_tol : float
-        ``|f_a - f_b| / f_a`` below which two modes are near-duplicates (spec §7: 0.2 %).
+        ``|f_a - f_b| / f_a`` below which two modes are near-duplicates (docs/method.md §7: 0.2 %).
     damping_tol : float
         Relative damping difference ``|z_a - z_b| / max(z_a, z_b)`` allowed ("similar zeta").
     cancel_ratio : float
@@ -539,7 +539,7 @@ class Threshold:
         Values ``>= threshold`` are physical (``nan`` if nothing could be split).
     physical : bool ndarray, shape (q,)
     separation_ratio : float
-        Lowest physical MDI / highest spurious candidate MDI (``10**gap``; spec §7.4).
+        Lowest physical MDI / highest spurious candidate MDI (``10**gap``; docs/method.md §7.4).
         ``inf`` when no candidate is spurious, ``nan`` when none is physical.
     method : str
         ``'largest_gap'``, ``'top_n'`` or ``'manual'``.
@@ -558,7 +558,7 @@ class Threshold:
 def largest_gap_threshold(mdi, *, candidates=None, min_physical: int = 1,
                           top_n: int | None = None, manual_threshold: float | None = None,
                           floor: float = 1e-300) -> Threshold:
-    """Split MDI values at the largest gap of ``log10 MDI`` (spec §7).
+    """Split MDI values at the largest gap of ``log10 MDI`` (docs/method.md §7).
 
     Parameters
     ----------
@@ -566,7 +566,7 @@ def largest_gap_threshold(mdi, *, candidates=None, min_physical: int = 1,
         Index values (>= 0).
     candidates : bool ndarray, shape (q,), optional
         Values eligible to be physical (e.g. stable and in band); the others are spurious
-        beforehand and take no part in the search (spec §7.1). Default all.
+        beforehand and take no part in the search (docs/method.md §7.1). Default all.
     min_physical : int
         Search the gap only below the ``min_physical`` largest values (``j >= j_min``).
     top_n : int, optional
@@ -641,7 +641,7 @@ def largest_gap_threshold(mdi, *, candidates=None, min_physical: int = 1,
 
 def modal_detection(mu, c_hat, b_hat_d, E, z, Y, Y_model, frequencies_hz, members,
                     natural_frequency_hz, damping_ratio, *, half_widths: float = 3.0,
-                    min_lines: int = 2) -> np.ndarray:
+                    min_lines: int = 2, noise_var=None) -> np.ndarray:
     """How far each mode of a DT model stands above the model's residual, in sigmas.
 
     Parameters
@@ -664,6 +664,11 @@ def modal_detection(mu, c_hat, b_hat_d, E, z, Y, Y_model, frequencies_hz, member
     half_widths : float
         Window ``|f - f_n| <= half_widths * zeta f_n`` (the half-power half-width is
         ``zeta f_n``), at least ``min_lines`` lines each side.
+    noise_var : ndarray, shape (F, p), optional
+        Independent noise variance of ``Y`` per line (periods or non-excited lines). The
+        residual energy in the window is taken as at least the expected noise energy there:
+        a model whose extra poles fit the noise has a residual below it, which would make
+        those poles look detectable.
 
     Returns
     -------
@@ -698,6 +703,8 @@ def modal_detection(mu, c_hat, b_hat_d, E, z, Y, Y_model, frequencies_hz, member
         y_mode = x[w][:, idx] @ np.asarray(c_hat)[:, idx].T
         e_mode = float(np.sum(np.abs(y_mode) ** 2))
         e_res = float(np.sum(res[w]))
+        if noise_var is not None:
+            e_res = max(e_res, float(np.sum(np.asarray(noise_var)[w])))
         m = int(w.sum()) * p
         out[k] = np.inf if e_res <= 0 else e_mode / e_res * np.sqrt(m)
     return out

@@ -28,7 +28,7 @@ class AutoOptions:
     Attributes
     ----------
     ic_band : {'auto', 'processed', 'excited'} or (float, float)
-        Lines of the model error V (spec §8.3); see :func:`ident.order_selection.ic_line_mask`.
+        Lines of the model error V (docs/method.md §8.3); see :func:`ident.order_selection.ic_line_mask`.
     criterion : {'mdl', 'seed', 'aic'}
         ``I(n)`` (:func:`ident.order_selection.information_criterion`). ``mdl`` (default):
         Rissanen's minimum description length with the state-space parameter count,
@@ -41,7 +41,7 @@ class AutoOptions:
     mdi_norm : {'h2', 'seed', 'h2_single', 'hinf', 'hinf_band'}
         Norm that classifies (all are reported).
     input_scaling : {'default', 'force', 'raw'}
-        Column weights of the modal input rows (spec §5.2).
+        Column weights of the modal input rows (docs/method.md §5.2).
     output_scaling : {'rms', 'noise', 'none'}
         Row weights of the modal output shapes (:func:`ident.mdi.output_weights`): ``rms``
         counts every channel by its relative response, so a mode that dominates a few
@@ -50,18 +50,18 @@ class AutoOptions:
         absolute sum.
     require_stabilised : bool
         Veto: a mode above the MDI threshold that is not stabilised in frequency against the
-        previous order (class ``new``) is dropped and reported (spec §8.5). The gap search
+        previous order (class ``new``) is dropped and reported (docs/method.md §8.5). The gap search
         itself runs over every stable in-band mode.
     min_physical : int
         Search the largest gap below the ``min_physical`` largest candidates.
     top_n : int or None
-        Keep exactly the ``top_n`` largest candidates (weak genuine modes; spec §7.5).
+        Keep exactly the ``top_n`` largest candidates (weak genuine modes; docs/method.md §7.5).
     manual_threshold : float or None
         Keep candidates with MDI above this value.
     group_split_modes : bool
-        Group near-duplicate poles with cancelling residues (spec §7.5).
+        Group near-duplicate poles with cancelling residues (docs/method.md §7.5).
     freq_tol, damping_tol, mac_tol : float
-        Stabilisation tolerances (spec §4).
+        Stabilisation tolerances (docs/method.md §4).
     out_of_band : {'keep', 'stabilised', 'drop'}
         Poles outside the band of interest, which the MDI does not judge. ``keep``
         (default): every stable pole outside the band stays in the reduced model (real
@@ -78,7 +78,7 @@ class AutoOptions:
         B, D of the sweep's models when the data carry a noise covariance: ``fast`` uses the
         unweighted modal-form least squares for every order (they only feed V(n); poles and
         mode shapes come from A, C of the weighted SVD) and re-estimates the selected and MDI
-        models with the weighted routine (spec §1.4); ``weighted`` uses it for every order
+        models with the weighted routine (docs/method.md §1.4); ``weighted`` uses it for every order
         (about 1-3 s per order with 39 outputs).
     stab_lookback : int
         Previous orders each pole is compared with (best class kept); 2 because the sweep
@@ -91,9 +91,9 @@ class AutoOptions:
         ``i``; default from the core.
     ambiguous_ratio, clear_ratio : float
         Separation ratios below ``ambiguous_ratio`` are reported as ambiguous, above
-        ``clear_ratio`` as clear (spec §7.4: "below about 2, call it ambiguous").
+        ``clear_ratio`` as clear (docs/method.md §7.4: "below about 2, call it ambiguous").
     fallback : {'stabilisation', 'none'}
-        Combine the MDI split with stabilisation (spec §7.5, §8.5): an eligible mode below
+        Combine the MDI split with stabilisation (docs/method.md §7.5, §8.5): an eligible mode below
         the gap is kept if it is fully stable (frequency, damping and MACX against the
         neighbouring orders); when the largest-gap ratio is below ``clear_ratio``, any mode
         stabilised in frequency with ``MDI >= fallback_rel_floor * max MDI`` is kept too. Reason: when no spurious
@@ -115,10 +115,16 @@ class AutoOptions:
     spread_factor : float
         Gate of ``consistent`` selection. 3: on the SmallSat the orders whose coefficients
         were within 0.1-0.3 % had ``rho`` within 3x of the best (docs/robust.md).
+    min_half_power_lines : float
+        A kept mode whose half-power half-width ``zeta f_n`` is below this many line
+        spacings ``fs / N`` falls between the lines (its damping is poorly determined): the
+        confidence is not "clear", and within 3 lines of a 50/60 Hz harmonic the pole is
+        taken for hum and dropped. 0.5 (the SmallSat's narrowest mode spans 4.7 lines, a
+        genuine mode of the 3-DOF test chain 0.25); 0 disables both.
     fallback_rel_floor : float
-        Relative MDI floor of the not-clear-gap fallback (spec §7.5 suggests 1e-3). Fully
+        Relative MDI floor of the not-clear-gap fallback (docs/method.md §7.5 suggests 1e-3). Fully
         stable modes need no floor: weakly excited genuine modes carry MDI 1e-6 to 1e-3 of the
-        largest (spec §8.5; SmallSat modes 9-11 with 39 channels).
+        largest (docs/method.md §8.5; SmallSat modes 9-11 with 39 channels).
     """
 
     ic_band: Any = "auto"
@@ -148,6 +154,7 @@ class AutoOptions:
     order_selection: str = "consistent"
     spread_factor: float = 3.0
     detection_sigma: float = 5.0
+    min_half_power_lines: float = 0.5
 
     def validate(self) -> "AutoOptions":
         """Raise :class:`IdentError` naming the bad option and the allowed values."""
@@ -176,6 +183,8 @@ class AutoOptions:
                              "('consistent', 'ic')")
         if not self.detection_sigma >= 0:
             raise IdentError(f"detection_sigma must be >= 0, got {self.detection_sigma}")
+        if not self.min_half_power_lines >= 0:
+            raise IdentError(f"min_half_power_lines must be >= 0, got {self.min_half_power_lines}")
         if not self.spread_factor >= 1:
             raise IdentError(f"spread_factor must be >= 1, got {self.spread_factor}")
         if self.min_physical < 1:

@@ -1,7 +1,7 @@
-"""Model-order selection by the information criterion (spec §3, §8.3; seed §3, Eq. 6-8).
+"""Model-order selection by the information criterion (docs/method.md §3, §8.3; seed §3, Eq. 6-8).
 
 Pure functions over arrays. The model error of order ``n`` is the steady-state output error,
-computed exactly in the frequency domain (spec §3 shortcut: ``Y_ss(k) = G_d(z_k) E(k)``,
+computed exactly in the frequency domain (docs/method.md §3 shortcut: ``Y_ss(k) = G_d(z_k) E(k)``,
 :func:`ident.fnsi.steady_state_output`), normalised by the output energy on the same lines:
 
     V(n) = sum_{k in K_V} ||Y(k) - Y_ss(k)||^2 / sum_{k in K_V} ||Y(k)||^2        (Eq. 7)
@@ -17,14 +17,14 @@ Options
 residuals: ``criterion='aic'``, ``I = V (1 + 2 n_theta / N_r)``; ``criterion='mdl'``
 (Rissanen's minimum description length, the default of :mod:`ident.auto`),
 ``I = V exp(n_theta ln(N_r) / N_r)``, i.e. ``ln I = ln V + n_theta ln(N_r) / N_r``. Eq. 8's
-penalty is 3 % at n = 60 and F = 2000 (spec §3), so wherever V has reached its floor (noise,
+penalty is 3 % at n = 60 and F = 2000 (docs/method.md §3), so wherever V has reached its floor (noise,
 model error) its minimum falls at an arbitrary order; MDL's grows with the data and is
 consistent.
 
 ``band='auto'`` (default) evaluates V over the excited lines when the outputs are few
 (``p <= FEW_OUTPUTS``) and over all processed lines otherwise: with few outputs, the extra
 states of high orders fit the harmonic content of the basis functions outside the excited
-band and V keeps falling there (spec §8.3). ``'processed'``, ``'excited'`` or an explicit
+band and V keeps falling there (docs/method.md §8.3). ``'processed'``, ``'excited'`` or an explicit
 ``(f_min, f_max)`` in Hz are also accepted.
 """
 
@@ -41,7 +41,7 @@ Criterion = Literal["seed", "aic", "mdl"]
 CRITERIA: tuple[str, ...] = ("seed", "aic", "mdl")
 IcBand = Literal["auto", "processed", "excited"]
 IC_BANDS: tuple[str, ...] = ("auto", "processed", "excited")
-#: ``band='auto'`` uses the excited lines when there are at most this many outputs (spec §8.3:
+#: ``band='auto'`` uses the excited lines when there are at most this many outputs (docs/method.md §8.3:
 #: 3 outputs need the excited band, 39 do well on the processed band). Fixed a priori.
 FEW_OUTPUTS = 8
 
@@ -51,7 +51,7 @@ __all__ = ["InformationCriterion", "relative_model_error", "information_criterio
 
 
 def relative_model_error(Y, Y_hat, mask=None) -> float:
-    """``V = sum ||Y - Y_hat||^2 / sum ||Y||^2`` over the lines in ``mask`` (spec §3).
+    """``V = sum ||Y - Y_hat||^2 / sum ||Y||^2`` over the lines in ``mask`` (docs/method.md §3).
 
     Parameters
     ----------
@@ -119,7 +119,7 @@ def information_criterion(v, order, n_lines: int, *, criterion: Criterion = "see
 
 
 def ic_line_mask(frequencies_hz, excited, n_outputs: int, band="auto"):
-    """Lines on which V is evaluated (spec §8.3).
+    """Lines on which V is evaluated (docs/method.md §8.3).
 
     Parameters
     ----------

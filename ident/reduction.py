@@ -1,6 +1,6 @@
-"""Model reduction: remove spurious poles and re-estimate B, D (spec §6; seed Eq. 9-12).
+"""Model reduction: remove spurious poles and re-estimate B, D (docs/method.md §6; seed Eq. 9-12).
 
-Real-valued implementation (spec §6, "recommended"):
+Real-valued implementation (docs/method.md §6, "recommended"):
 
 1. work on the discrete-time model ``(A_d, C_d)`` that the least squares fits;
 2. keep a set of eigenvalues ``mu_i`` of ``A_d`` (both members of every conjugate pair);
@@ -8,7 +8,7 @@ Real-valued implementation (spec §6, "recommended"):
    ``A_r = T[:r, :r]``, ``C_r = C_d Q[:, :r]`` (restriction of ``A_d`` to the kept invariant
    subspace: kept poles and their output mode shapes are preserved exactly; orthogonal, so
    well conditioned even for close eigenvalues);
-4. re-estimate real ``(B_r, D_r)`` by the weighted least squares of spec §1.4
+4. re-estimate real ``(B_r, D_r)`` by the weighted least squares of docs/method.md §1.4
    (:func:`ident.fnsi.estimate_bd`, same lines, weights and D option) -- seed Eq. 11-12;
 5. continuous time, extended FRF and nonlinear coefficients are recomputed from the reduced
    model by the caller (:func:`ident.fnsi.make_model` does the CT conversion and poles).
@@ -76,7 +76,7 @@ def restrict_to_eigenvalues(a_d, c_d, keep):
 
     Notes
     -----
-    Spec §6 step 3. The Schur eigenvalues differ from ``eigvals`` by rounding, so each Schur
+    docs/method.md §6 step 3. The Schur eigenvalues differ from ``eigvals`` by rounding, so each Schur
     eigenvalue is assigned the flag of its nearest ``eigvals`` entry.
     """
     a_d = np.asarray(a_d, float)
@@ -130,7 +130,7 @@ def reduce_model(model, data, keep, *, d_zero: bool = False, weighted: bool = Tr
 
     Notes
     -----
-    Seed Eq. 11-12 with the real Schur restriction of spec §6. ``c_a``, the underlying
+    Seed Eq. 11-12 with the real Schur restriction of docs/method.md §6. ``c_a``, the underlying
     linear FRF and the coefficient summary follow from the returned model.
     """
     from fnsi_lab.ident import fnsi  # the core: imported late so the pure parts need no core

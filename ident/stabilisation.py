@@ -1,4 +1,4 @@
-"""Stabilisation diagram: classify each pole against the previous order (spec §4).
+"""Stabilisation diagram: classify each pole against the previous order (docs/method.md §4).
 
 Pure functions over arrays. For every order ``n`` and every pole of order ``n`` in the band,
 look for a pole of the previous order in the sweep:
@@ -39,7 +39,7 @@ __all__ = ["macx", "macx_matrix", "StabilisationOrder", "StabilisationDiagram",
 
 
 def macx(psi1, psi2) -> float:
-    """MACX of two complex shapes (Vacher, Jacquier, Bucharles, ISMA 2010; spec §4).
+    """MACX of two complex shapes (Vacher, Jacquier, Bucharles, ISMA 2010; docs/method.md §4).
 
     ``(|psi1^H psi2| + |psi1^T psi2|)^2 / ((psi1^H psi1 + |psi1^T psi1|)(psi2^H psi2 + |psi2^T psi2|))``.
     Equals MAC for real shapes; invariant to a complex scaling of either shape and to
@@ -90,7 +90,7 @@ class StabilisationOrder:
 
 @dataclass(frozen=True)
 class StabilisationDiagram:
-    """Stabilisation diagram over a sweep of orders (spec §4).
+    """Stabilisation diagram over a sweep of orders (docs/method.md §4).
 
     Attributes
     ----------
@@ -142,7 +142,7 @@ def classify_stabilisation(orders: Sequence[int], frequency_hz: Sequence, dampin
     band_hz : (float, float)
         Only poles with ``band_hz[0] <= f <= band_hz[1]`` are classified and reported.
     freq_tol, damping_tol, mac_tol : float
-        Spec §4 defaults 1 %, 5 %, 0.98.
+        docs/method.md §4 defaults 1 %, 5 %, 0.98.
     lookback : int
         Compare with each of the ``lookback`` previous orders of the sweep and keep the best
         class (rank stable > mode > damping > frequency > new). 1 (default) is the classic

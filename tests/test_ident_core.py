@@ -3,7 +3,7 @@
 Linear data are generated exactly in the frequency domain from the ZOH-discretised model
 (periodic steady state = G_d(z_k) U(k) line by line), so the identified CT model must equal
 the true one to round-off. Nonlinear data come from the project's simulator (daq.sim), whose
-anti-alias filter and sampled basis functions set an accuracy floor (spec §8.4).
+anti-alias filter and sampled basis functions set an accuracy floor (docs/method.md §8.4).
 """
 
 from __future__ import annotations
@@ -111,7 +111,7 @@ def test_ct_conversion_inverts_zoh(linear_mimo):
 
 
 def test_steady_state_output_equals_time_simulation():
-    """Spec §3: G_d(z_k) E(k) is the DFT of the periodic steady state of x(t+1) = A x + B e."""
+    """docs/method.md §3: G_d(z_k) E(k) is the DFT of the periodic steady state of x(t+1) = A x + B e."""
     rng = np.random.default_rng(3)
     fs, N, n, p, m_e = 100.0, 256, 4, 2, 3
     # stable DT model: two lightly damped pairs (|mu| = 0.9, 0.8) in real block form
@@ -145,7 +145,7 @@ def test_steady_state_output_equals_time_simulation():
 
 # ---------------------------------------------------------------------------- B, D vs a slow oracle
 def _slow_bd(a, c, data, d_zero, weighted):
-    """Plain stacked real least squares of spec §1.4 (the obvious reference)."""
+    """Plain stacked real least squares of docs/method.md §1.4 (the obvious reference)."""
     n, p, m_e = a.shape[0], c.shape[0], data.n_extended_inputs
     rows = []
     rhs = []
@@ -281,7 +281,7 @@ def test_decomposition_size_rules(linear_mimo):
     dec = fnsi.subspace_decomposition(data, max_order=10)
     with pytest.raises(IdentError, match="outside"):
         fnsi.model_at_order(dec, data, dec.max_order + 1)
-    assert fnsi.default_block_rows(3, 60, 2000, 4) == 60  # spec §8.2: few channels, many rows
+    assert fnsi.default_block_rows(3, 60, 2000, 4) == 60  # docs/method.md §8.2: few channels, many rows
     assert fnsi.default_block_rows(39, 60, 2000, 3) == 20  # at least 20 (docs/robust.md)
 
 
@@ -349,7 +349,7 @@ def test_relative_cubic_spring_both_sign_conventions(cubic_sim):
         nl = Nonlinearity("knl", "polynomial", {"X2": s, "X3": -s}, exponent=3, truth=(1e9,))
         mdl, sp, (summ,) = _identify(model, u, y, exc, nl, 512.0, 4096)
         out.append(summ)
-        # sampled-basis floor of the simulation (spec §8.4): measured +0.13 % (mean), +0.05 % (LS)
+        # sampled-basis floor of the simulation (docs/method.md §8.4): measured +0.13 % (mean), +0.05 % (LS)
         assert abs(summ.error_percent) < 0.5 and abs(summ.ls_error_percent) < 0.5
         assert summ.mean_real > 0 and summ.log10_re_im > 2  # seed's quality flag: > 2 good
         assert summ.n_lines == exc.size
@@ -372,7 +372,7 @@ def test_relative_trilinear_stop_both_sign_conventions():
         # two runs agree to round-off.
         _, _, summ = _identify(model, u, y, exc, nl, fs, N, block_rows=10)
         for c in summ:
-            # kink aliasing floor (spec §8.4): measured within 0.35 % (mean) and 1 % (LS)
+            # kink aliasing floor (docs/method.md §8.4): measured within 0.35 % (mean) and 1 % (LS)
             assert c.mean_real > 0 and abs(c.error_percent) < 1.5 and abs(c.ls_error_percent) < 2.5
         res[s] = summ
     # flipping L swaps the sides: k_neg(+L) is k_pos(-L), same positive value
@@ -396,11 +396,11 @@ def test_acceleration_outputs():
     model, u, y, exc = _simulate("cubic", fs, N, quantity="acceleration")
     nl = Nonlinearity("knl", "polynomial", {"X2": 1, "X3": -1}, exponent=3, truth=(1e9,))
     mdl, sp, (summ,) = _identify(model, u, y, exc, nl, fs, N, quantity="acceleration")
-    # frequency-domain double integration for the basis (spec §2.5), D estimated (non-zero
+    # frequency-domain double integration for the basis (docs/method.md §2.5), D estimated (non-zero
     # feedthrough of accelerances); the ratio cancels -w^2. Measured -0.03 % / -0.02 %.
     assert abs(summ.error_percent) < 0.5 and abs(summ.ls_error_percent) < 0.5
     # D_c = S M^-1 T_p: 1/m = 1 (1/kg) at the driven DOF X3, 0 elsewhere. The DT feedthrough
-    # also absorbs the ZOH-vs-band-limited sampling mismatch of accelerances (spec §1.5
+    # also absorbs the ZOH-vs-band-limited sampling mismatch of accelerances (docs/method.md §1.5
     # caveat): measured 0.992 and |D| < 6e-3 off the driving point.
     assert mdl.d_c[2, 0] == pytest.approx(1.0, rel=2e-2)
     assert np.max(np.abs(mdl.d_c[:2, 0])) < 2e-2
@@ -430,7 +430,7 @@ def test_coefficients_need_driving_point_and_measured_channels(cubic_sim):
 
 # ---------------------------------------------------------------------------- bilinear time base
 def test_bilinear_time_base_recovers_ct_model_from_ct_data():
-    """Spec §1.6: data exactly G_c(j w_k) U(k) (no sampling assumption) are fitted exactly."""
+    """docs/method.md §1.6: data exactly G_c(j w_k) U(k) (no sampling assumption) are fitted exactly."""
     fs, N = 256.0, 2048
     A, B, C = chain_ct()
     rng = np.random.default_rng(2)
@@ -450,7 +450,7 @@ def test_bilinear_time_base_recovers_ct_model_from_ct_data():
     Hm = fnsi.frf(mdl, data.frequencies_hz)
     assert np.max(np.abs(Hm - H[data.lines])) / np.max(np.abs(H)) < 1e-8
     assert mdl.time_base == "bilinear" and np.allclose(mdl.d_c, 0, atol=1e-12)
-    # the ZOH reading of the same CT data is biased (spec §1.5 caveat): measured 3e-7 here
+    # the ZOH reading of the same CT data is biased (docs/method.md §1.5 caveat): measured 3e-7 here
     # (modes at 16-32 Hz, fs = 256 Hz), i.e. far above the bilinear round-off
     zoh = prepare_frequency_data(u=u, y=y, sample_rate_hz=fs, band_hz=(1, 100), time_base="zoh")
     mz = fnsi.model_at_order(fnsi.subspace_decomposition(zoh, max_order=10), zoh, 6)

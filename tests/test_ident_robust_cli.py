@@ -65,7 +65,7 @@ def test_cli_auto_writes_json(lumped_npz, tmp_path, capsys):
     np.testing.assert_allclose(sorted(m["frequency_hz"] for m in d["modes"]), phys)
     assert {"frequency_hz", "damping_ratio", "stable", "physical"} <= set(d["poles"][0])
     (knl,) = d["coefficients"]
-    # noise-free simulated cubic chain: measured ~0.01 %; the spec's 0.5 % is generous
+    # noise-free simulated cubic chain: measured ~0.01 %; 0.5 % leaves room for other BLAS builds
     assert knl["name"] == "knl" and abs(knl["error_percent"]) < 0.5
     assert {"ic_order", "order_selection", "coefficient_spread"} <= set(d)
     assert all(e["seed_value"] is None or e["seed_value"] > 0 for e in d["information_criterion"])

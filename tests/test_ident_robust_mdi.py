@@ -62,7 +62,7 @@ def test_frh2_single_and_pair_match_quadrature(lam, desc):
 
 def test_real_pole_seed_equals_single():
     lam = -7.0 + 0j
-    # real pole: seed Eq. 18 reading and Eq. 16-17 coincide exactly (spec §5.2); rounding only
+    # real pole: seed Eq. 18 reading and Eq. 16-17 coincide exactly (docs/method.md §5.2); rounding only
     assert mdi.frh2_seed(2.0, lam, BAND) == pytest.approx(mdi.frh2_single(2.0, lam, BAND), rel=1e-13)
 
 
@@ -74,7 +74,7 @@ def test_seed_close_to_pair_for_light_damping_in_band():
     cross = np.conj(np.sum(c * c) * np.sum(b * b))
     band = (10.0, 100.0)
     ratio = mdi.frh2_seed(r2, lam, band) / mdi.frh2_pair(r2, cross, lam, band)
-    # spec §5.2 quotes 1.001 for this pole and band; residue phase moves it by < 1 %
+    # docs/method.md §5.2 quotes 1.001 for this pole and band; residue phase moves it by < 1 %
     assert ratio == pytest.approx(1.0, abs=0.01)
 
 

@@ -1,4 +1,4 @@
-"""Model reduction by ordered real Schur form (spec §6)."""
+"""Model reduction by ordered real Schur form (docs/method.md §6)."""
 
 import numpy as np
 import pytest
@@ -27,7 +27,7 @@ def _real_modal_system(rng, mus, p=3, m=2):
 
 
 def _dense_bd(a, c, z, Y, E):
-    """Slow obvious oracle: real LS for vec(B), vec(D) from stacked Re/Im (spec §1.4)."""
+    """Slow obvious oracle: real LS for vec(B), vec(D) from stacked Re/Im (docs/method.md §1.4)."""
     n, p, me = a.shape[0], c.shape[0], E.shape[1]
     rows, rhs = [], []
     for zk, yk, ek in zip(z, Y, E):
@@ -68,7 +68,7 @@ def test_restriction_keeps_poles_and_shapes():
 
 
 def test_zero_residue_pair_removed_reproduces_frf():
-    """Spec §6 check: 8 states, one pair with zero input residue, reduced to 6."""
+    """docs/method.md §6 check: 8 states, one pair with zero input residue, reduced to 6."""
     rng = np.random.default_rng(5)
     mus = [0.95 * np.exp(0.2j), 0.9 * np.exp(0.7j), 0.92 * np.exp(1.1j), 0.8 * np.exp(2.0j)]
     A, V, T = _real_modal_system(rng, mus)
@@ -87,7 +87,7 @@ def test_zero_residue_pair_removed_reproduces_frf():
     a_r, c_r, _ = reduction.restrict_to_eigenvalues(A, C, keep)
     b_r, d_r = _dense_bd(a_r, c_r, z, Y, E)
     Gr = np.array([c_r @ np.linalg.solve(zk * np.eye(6) - a_r, b_r) + d_r for zk in z])
-    # spec §6 quotes 4.6e-12; LS conditioning here ~1e3 -> 1e-9 relative is a safe bound
+    # docs/method.md §6 quotes 4.6e-12; LS conditioning here ~1e3 -> 1e-9 relative is a safe bound
     assert np.max(np.abs(Gr - G)) / np.max(np.abs(G)) < 1e-9
 
 
