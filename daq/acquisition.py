@@ -184,10 +184,22 @@ def stop_on_signals(stop: threading.Event) -> Iterator[None]:
             signal.signal(sig, old)
 
 
+def _write_failed(recorder: Any, exc: OSError) -> Exception:
+    """The one-line error of a failed write (disk full...): the file stays recoverable."""
+    from fnsi_lab.daq.recording.errors import RecordingWriteError
+
+    path = getattr(recorder, "path", "the recording")
+    return RecordingWriteError(
+        f"{path}: writing failed ({exc.strerror or exc}); everything flushed before stays "
+        f"recoverable: free some space, then run `fnsi-lab recover {path} "
+        f"{Path(str(path)).with_suffix('')}.recovered.mcap`")
+
+
 def acquire(source: Source, recorder: Any, *, taps: Sequence[Tap] = (),
             live: bool | None = None, queue_blocks: int = 1024,
             max_duration_s: float | None = None, stop: threading.Event | None = None,
-            on_block: Callable[[Block, AcquisitionReport], None] | None = None) -> AcquisitionReport:
+            on_block: Callable[[Block, AcquisitionReport], None] | None = None,
+            chunk_signal_s: float = 1.0) -> AcquisitionReport:
     """Run ``source`` until it finishes (or ``stop`` is set), recording every block.
 
     Parameters
@@ -211,6 +223,9 @@ def acquire(source: Source, recorder: Any, *, taps: Sequence[Tap] = (),
         Set it (from any thread, or via SIGINT/SIGTERM) to stop cleanly.
     on_block : callable or None
         Called in the reader thread after each block (status display).
+    chunk_signal_s : float
+        Close the recorder's chunk after this many seconds of signal (besides its own
+        wall-clock flush interval), so that a damaged chunk loses about this much.
 
     Returns
     -------
@@ -218,12 +233,18 @@ def acquire(source: Source, recorder: Any, *, taps: Sequence[Tap] = (),
     """
     if live is None:
         live = getattr(source, "_pace", None) is not None or getattr(source, "is_live", False)
+    if int(queue_blocks) < 1:
+        raise ValueError(f"queue_blocks must be >= 1, got {queue_blocks}")
     stop = stop or threading.Event()
     report = AcquisitionReport(output=str(getattr(recorder, "path", "") or ""),
                                n_channels=len(source.channels),
                                sample_rate_hz=source.sample_rate_hz)
     work: queue.Queue[Any] = queue.Queue(maxsize=max(int(queue_blocks), 1))
     writer_error: list[BaseException] = []
+
+    # a chunk at least every second of signal: a damaged chunk then costs about one second,
+    # also when a simulation is recorded far faster than real time
+    unflushed_s = [0.0]
 
     def writer() -> None:
         while True:
@@ -236,11 +257,17 @@ def acquire(source: Source, recorder: Any, *, taps: Sequence[Tap] = (),
                 kind, payload = item
                 if kind == "block":
                     recorder.write_block(payload)
+                    unflushed_s[0] += payload.duration_s
+                    if unflushed_s[0] >= chunk_signal_s and hasattr(recorder, "flush"):
+                        recorder.flush()
+                        unflushed_s[0] = 0.0
                 elif kind == "event":
                     recorder.write_event(payload)
                 else:
                     topic, time_ns, obj = payload
                     recorder.write_json(topic, time_ns, obj)
+            except OSError as exc:  # disk full, file too large, I/O error
+                writer_error.append(_write_failed(recorder, exc))
             except BaseException as exc:  # reported by the reader thread
                 writer_error.append(exc)
 
@@ -315,7 +342,8 @@ def recording_metadata(config: "ExperimentConfig", source: Source) -> dict[str, 
                        "sample_rate_hz": source.sample_rate_hz, "block_size": config.block_size},
         "channels": [c.to_dict() for c in source.channels],
     }
-    metadata.update(source.describe())
+    # a source may hold back what it knows only after the run (describe_at_end)
+    metadata.update(getattr(source, "describe_at_start", source.describe)())
     if "excitation" not in metadata and config.excitation is not None:
         metadata["excitation"] = {**config.excitation.to_dict(),
                                   "sample_rate_hz": config.sample_rate_hz}
@@ -352,14 +380,26 @@ def record_experiment(config: "ExperimentConfig", output: str | os.PathLike[str]
         attachments = []
         if config.text:
             attachments.append(("experiment.yaml", "application/yaml", config.text.encode()))
+        at_end = getattr(source, "describe_at_end", None)
         truth_attachments = getattr(source, "truth_attachments", None)
-        if truth_attachments is not None:
+        if at_end is None and truth_attachments is not None:
             attachments.extend(truth_attachments())
+        # paced: a chunk every 0.25 s, so a killed recording loses at most that much
         with Recorder(path, source.channels, source.sample_rate_hz,
                       metadata=recording_metadata(config, source),
-                      attachments=attachments) as recorder:
+                      attachments=attachments,
+                      flush_interval_s=0.25 if realtime else 1.0) as recorder:
             report = acquire(source, recorder, taps=taps, stop=stop, on_block=on_block,
                              live=True if realtime else None)
+            if at_end is not None:  # the complete truth: readers keep the last record
+                metadata, late = at_end(finished=not report.interrupted)
+                try:
+                    for key, value in metadata.items():
+                        recorder.add_metadata(key, value)
+                    for name, media_type, data in late:
+                        recorder.add_attachment(name, media_type, data)
+                except OSError as exc:
+                    raise _write_failed(recorder, exc) from None
     report.output = str(path)
     report.file_size_bytes = path.stat().st_size if path.exists() else 0
     return report

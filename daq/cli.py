@@ -10,8 +10,15 @@ from fnsi_lab.progress import Progress
 
 
 def _acquire(args: argparse.Namespace) -> int:
+    import numpy  # noqa: F401 - loads OpenBLAS, so that its thread count can be set
+
+    from fnsi_lab.blas import limit_blas_threads
     from fnsi_lab.daq.acquisition import record_experiment
     from fnsi_lab.daq.config import load_experiment
+
+    # The simulated sources' small dense solves (model construction, 96x96 eigenproblems)
+    # run ~30x slower in CPU time with several OpenBLAS threads on a shared small machine.
+    limit_blas_threads(1)
 
     from fnsi_lab.outputs import check_output_path
 

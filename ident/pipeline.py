@@ -218,9 +218,11 @@ def prepare_session(inp: IdentInput, cfg: IdentConfig, *, search_order: int | No
     inp = select_channels(inp, outputs=cfg.outputs, inputs=[i.name for i in cfg.inputs] or None)
     cfg, truth_notes = apply_recording_truth(cfg, inp.truth)
     nyquist = inp.sample_rate_hz / 2
-    if cfg.band_hz[0] >= nyquist:
-        raise IdentError(f"band_hz {list(cfg.band_hz)} starts above the Nyquist frequency "
-                         f"{nyquist:g} Hz of the data (fs {inp.sample_rate_hz:g} Hz)")
+    if cfg.band_hz[1] > nyquist:  # the band's upper edge included: no line exists there
+        where = "starts" if cfg.band_hz[0] >= nyquist else "ends"
+        raise IdentError(f"band_hz {list(cfg.band_hz)} {where} above the Nyquist frequency "
+                         f"{nyquist:g} Hz of the data (fs {inp.sample_rate_hz:g} Hz); "
+                         f"lower band_hz to at most {nyquist:g} Hz")
     quantity = cfg.output_quantity or inp.output_quantity or "displacement"
     unknown = has_unknown_parameters(cfg.nonlinearities)
     with warnings.catch_warnings(record=True) as caught:

@@ -36,5 +36,14 @@ class MissingChannelsError(RecordingError):
     """The channel table is absent or does not match the sample blocks."""
 
 
+class RecordingWriteError(RecordingError):
+    """Writing the recording failed (disk full, file too large, I/O error): exit status 1.
+
+    What was flushed before stays recoverable with ``fnsi-lab recover``.
+    """
+
+    exit_code = 1
+
+
 class RecorderClosedError(RecordingError):
     """A write was attempted on a closed :class:`~daq.recording.writer.Recorder`."""

@@ -38,15 +38,24 @@ def recording_info(path: str | os.PathLike[str]) -> dict[str, Any]:
     Raises
     ------
     RecordingError
-        As :func:`~daq.recording.reader.open_recording`.
+        As :func:`~daq.recording.reader.open_recording`; with CRC checks on (the default),
+        :class:`DamagedRecordingError` naming the first damaged chunk or attachment.
     """
     with open_recording(path) as rec:
+        if rec.validate_crcs:  # every chunk and attachment, not only those read below
+            problems = rec.damage()
+            if problems:
+                more = f" (and {len(problems) - 1} more damaged parts)" if len(problems) > 1 else ""
+                raise rec.damaged_error(problems[0] + more)
         per_real: Counter[int] = Counter()
         total = 0
         lost = 0
         last_seq: int | None = None
         for _, payload in rec._iter_samples():
-            n_samples, _, _, realization, sequence = schema.decode_header(payload)
+            try:
+                n_samples, _, _, realization, sequence = schema.decode_header(payload)
+            except schema.MalformedMessageError as exc:
+                raise rec.damaged_error(f"corrupt sample message ({exc})") from None
             per_real[realization] += n_samples
             total += n_samples
             if last_seq is not None and sequence > last_seq + 1:

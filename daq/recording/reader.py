@@ -106,7 +106,8 @@ class Recording:
                 f"{self.path} {recovered_name(self.path)}` to re-index it")
         return summary
 
-    def _damaged(self, what: str) -> DamagedRecordingError:
+    def damaged_error(self, what: str) -> DamagedRecordingError:
+        """The one-line error for a damaged part ``what`` of this file (with the fix)."""
         return DamagedRecordingError(
             f"{self.path}: {what}; run `fnsi-lab recover {self.path} {recovered_name(self.path)}` "
             "to salvage every intact chunk (or add --no-crc-check to read it as it is)")
@@ -118,16 +119,16 @@ class Recording:
         self._stream.seek(footer_at)
         raw = self._stream.read(29)
         if len(raw) != 29 or raw[0] != Opcode.FOOTER:
-            raise self._damaged("damaged footer")
+            raise self.damaged_error("damaged footer")
         summary_start, _, crc = struct.unpack_from("<QQI", raw, 9)
         if crc == 0 or summary_start == 0:
             return  # the writer did not compute it
         if not 0 < summary_start <= footer_at:
-            raise self._damaged("damaged footer (summary offset out of range)")
+            raise self.damaged_error("damaged footer (summary offset out of range)")
         self._stream.seek(summary_start)
         body = self._stream.read(footer_at - summary_start)
         if zlib.crc32(raw[:25], zlib.crc32(body)) != crc:
-            raise self._damaged(f"damaged summary section (bytes {summary_start}-{footer_at}: "
+            raise self.damaged_error(f"damaged summary section (bytes {summary_start}-{footer_at}: "
                                 "CRC mismatch; channel table, statistics or chunk index)")
 
     def _chunk_label(self, ci: Any) -> str:
@@ -149,10 +150,10 @@ class Recording:
             chunk = Chunk.read(ReadDataStream(self._stream))
             raw = _decompress(chunk)
         except (McapError, ValueError, OSError, EOFError, zlib.error, struct.error) as exc:
-            raise self._damaged(f"damaged {self._chunk_label(ci)}: {exc}") from None
+            raise self.damaged_error(f"damaged {self._chunk_label(ci)}: {exc}") from None
         if (self.validate_crcs and chunk.uncompressed_crc
                 and zlib.crc32(raw) != chunk.uncompressed_crc):
-            raise self._damaged(f"damaged {self._chunk_label(ci)}: CRC mismatch")
+            raise self.damaged_error(f"damaged {self._chunk_label(ci)}: CRC mismatch")
         return raw
 
     def damage(self) -> list[str]:
@@ -206,27 +207,36 @@ class Recording:
 
     def _load_metadata(self) -> dict[str, Any]:
         out: dict[str, Any] = {}
+        with_crc = without_crc = 0
         try:
             for record in self._reader.iter_metadata():
-                if not record.name.startswith(topics.METADATA_PREFIX):
-                    continue
-                key = record.name[len(topics.METADATA_PREFIX):]
                 text = record.metadata.get(topics.METADATA_JSON_KEY)
                 crc = record.metadata.get(topics.METADATA_CRC_KEY)
-                if self.validate_crcs and crc is not None and (
-                        text is None or topics.metadata_crc(record.name, text) != crc):
-                    raise self._damaged(f"damaged metadata record {record.name!r} (CRC mismatch)")
+                if self.validate_crcs and crc is not None:
+                    # checked whatever the name: a flipped bit in the name is damage too
+                    if text is None or topics.metadata_crc(record.name, text) != crc:
+                        raise self.damaged_error(
+                            f"damaged metadata record {record.name!r} (CRC mismatch)")
+                if not record.name.startswith(topics.METADATA_PREFIX):
+                    continue
+                if crc is None:
+                    without_crc += 1
+                else:
+                    with_crc += 1
+                key = record.name[len(topics.METADATA_PREFIX):]
                 if text is None:
                     continue
                 try:
                     out[key] = json.loads(text)  # later records win
                 except json.JSONDecodeError:
-                    raise self._damaged(f"metadata record {record.name!r} is not valid JSON") from None
-        except (McapError, OSError, ValueError) as exc:
+                    raise self.damaged_error(f"metadata record {record.name!r} is not valid JSON") from None
+        except (McapError, OSError, ValueError, struct.error, UnicodeDecodeError) as exc:
             if isinstance(exc, RecordingError):
                 raise
-            raise RecordingError(f"{self.path}: unreadable metadata ({exc}); try "
-                                 f"`fnsi-lab recover {self.path} {recovered_name(self.path)}`") from None
+            raise self.damaged_error(f"unreadable metadata ({type(exc).__name__}: {exc})") from None
+        if self.validate_crcs and with_crc and without_crc:
+            # a writer that adds CRCs adds them to every record: one is missing its key
+            raise self.damaged_error("damaged metadata record (its CRC key is gone)")
         return out
 
     def _load_channels(self) -> tuple[ChannelInfo, ...]:
@@ -322,11 +332,11 @@ class Recording:
         if self.validate_crcs:
             for ai in self._summary.attachment_indexes:
                 if not self._attachment_intact(ai):
-                    raise self._damaged(f"damaged attachment {ai.name!r} (CRC mismatch)")
+                    raise self.damaged_error(f"damaged attachment {ai.name!r} (CRC mismatch)")
         try:
             return {a.name: a.data for a in self._reader.iter_attachments()}
         except (McapError, ValueError, OSError, EOFError, struct.error) as exc:
-            raise self._damaged(f"unreadable attachment ({exc})") from None
+            raise self.damaged_error(f"unreadable attachment ({exc})") from None
 
     def attachment_info(self) -> list[dict[str, Any]]:
         """Name, media type and size of each attachment (from the index, no data read)."""
@@ -349,7 +359,7 @@ class Recording:
                     ending_before=end_ns):
                 yield message
         except (McapError, ValueError, OSError, EOFError, struct.error, zlib.error) as exc:
-            raise self._damaged(f"damaged data on {topic} ({type(exc).__name__}: {exc})") from None
+            raise self.damaged_error(f"damaged data on {topic} ({type(exc).__name__}: {exc})") from None
 
     def _iter_samples(self, start_ns: int | None = None,
                       end_ns: int | None = None) -> Iterator[tuple[int, memoryview]]:
@@ -375,11 +385,11 @@ class Recording:
             pos, end = 0, len(buf)
             while pos < end:
                 if pos + 9 > end:
-                    raise self._damaged(f"damaged {self._chunk_label(ci)}: cut record")
+                    raise self.damaged_error(f"damaged {self._chunk_label(ci)}: cut record")
                 opcode, length = buf[pos], int.from_bytes(buf[pos + 1:pos + 9], "little")
                 nxt = pos + 9 + length
                 if nxt > end:
-                    raise self._damaged(f"damaged {self._chunk_label(ci)}: a record runs "
+                    raise self.damaged_error(f"damaged {self._chunk_label(ci)}: a record runs "
                                         "past the end of its chunk")
                 if opcode == Opcode.MESSAGE:
                     _, _, channel, _, log_time, _ = unpack(buf, pos)
@@ -393,7 +403,7 @@ class Recording:
         try:
             d = schema.decode_block(payload)
         except schema.MalformedMessageError as exc:
-            raise self._damaged(f"corrupt sample message at log time {log_time} ns ({exc})") from None
+            raise self.damaged_error(f"corrupt sample message at log time {log_time} ns ({exc})") from None
         if d.n_channels != len(self.channels):
             raise MissingChannelsError(
                 f"{self.path}: sample blocks have {d.n_channels} columns but the channel table "

@@ -27,7 +27,8 @@ from mcap.writer import CompressionType, Writer
 from fnsi_lab.daq.block import Block
 from fnsi_lab.daq.channels import ChannelInfo
 from fnsi_lab.daq.recording import schema, topics
-from fnsi_lab.daq.recording.errors import RecorderClosedError, RecordingError
+from fnsi_lab.daq.recording.errors import (RecorderClosedError, RecordingError,
+                                           RecordingWriteError)
 
 _COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
                 "none": CompressionType.NONE}
@@ -353,6 +354,16 @@ class Recorder:
         finally:
             self._end()
 
+    def add_attachment(self, name: str, media_type: str, data: bytes) -> None:
+        """Write one more attachment now (e.g. a truth FRF known only at the end of a run)."""
+        self._begin()
+        try:
+            now = time.time_ns()
+            self._writer.add_attachment(create_time=now, log_time=now, name=name,
+                                        media_type=media_type, data=bytes(data))
+        finally:
+            self._end()
+
     def flush(self) -> None:
         """Close the open chunk and hand everything to the OS now (no fsync)."""
         self._begin()
@@ -406,10 +417,13 @@ class Recorder:
                 self.blocks_flushed = self.blocks_written
                 os.fsync(self._stream.fileno())
             except OSError as exc:
-                raise RecordingError(f"{self.path}: could not finish the recording ({exc}); "
+                raise RecordingWriteError(f"{self.path}: could not finish the recording ({exc}); "
                                      f"run `fnsi-lab recover {self.path} FIXED.mcap`") from None
             finally:
-                self._stream.close()
+                try:
+                    self._stream.close()
+                except OSError:  # its buffer could not be written either (disk full)
+                    pass
                 _OPEN.discard(self)
         finally:
             self._lock.release()

@@ -47,7 +47,6 @@ import warnings
 import numpy as np
 import scipy.fft as sfft
 import scipy.linalg as sla
-import scipy.signal as ssig
 from numba import njit
 
 from fnsi_lab.daq.sim.model import StructuralModel
@@ -112,7 +111,7 @@ _FAST = {"reassoc", "contract", "arcp", "nsz"}
 _ROUNDOFF_ULPS = 8.0
 _EPS = float(np.finfo(np.float64).eps)
 
-@njit(cache=True, fastmath=_FAST)
+@njit(cache=True, fastmath=_FAST, nogil=True)  # nogil: realizations run in threads
 def _eval_forces(y, s, el, code, coef, gap, expo, signed, vel, v0, out):
     """Element forces ``out[a] = sum_b c_b h_b(x_a)`` (``x_a`` = disp or vel of element a)."""
     for a in range(s):
@@ -137,7 +136,7 @@ def _eval_forces(y, s, el, code, coef, gap, expo, signed, vel, v0, out):
         out[a] += coef[b] * h
 
 
-@njit(cache=True, fastmath=_FAST)
+@njit(cache=True, fastmath=_FAST, nogil=True)  # nogil: realizations run in threads
 def _eval_slopes(y, s, el, code, coef, gap, expo, signed, vel, v0, out):
     """Derivative of each element force with respect to its own argument, ``dF_a/dx_a``."""
     for a in range(s):
@@ -164,7 +163,7 @@ def _eval_slopes(y, s, el, code, coef, gap, expo, signed, vel, v0, out):
         out[a] += coef[b] * d
 
 
-@njit(cache=True, fastmath=_FAST)
+@njit(cache=True, fastmath=_FAST, nogil=True)  # nogil: realizations run in threads
 def _kernel(edr, edi, g0r, g0i, g1r, g1i, bur, bui, u, bfr, bfi, cr, ci, yoff, rows, erow,
             zr0, zi0, dmat, el, code, coef, gap, expo, signed, vel, v0, count_from,
             fout, counts, tol, max_iter):
@@ -640,6 +639,8 @@ def simulate(model: StructuralModel, force: np.ndarray, sample_rate_hz: float, *
         yoff = np.zeros((1, int(prep.need.sum())))
         x0 = np.zeros(2 * n)
         if os_ > 1:
+            import scipy.signal as ssig  # here: importing it costs ~1 s, periodic runs skip it
+
             up = ssig.resample_poly(np.vstack([p, np.zeros((1, p.shape[1]))]), os_, 1, axis=0)
             u_fine = np.ascontiguousarray(up[: n_fine + 1])
         else:

@@ -33,6 +33,8 @@ A model given as matrices::
 from __future__ import annotations
 
 import io
+import queue
+import threading
 from dataclasses import dataclass
 from typing import Any, Mapping
 
@@ -274,9 +276,13 @@ class SimulatedSource(Source):
 
     Notes
     -----
-    Each realization is simulated when its first block is read; blocks carry
-    ``first_sample`` counted within the realization and the realization index. Columns:
-    force channel(s) first (quantity ``force``), then the responses.
+    Once started, a background thread simulates the realizations in order, one ahead of
+    the reader (bounded memory), then the integration check at twice the internal rate
+    (``verify``) and the truth FRF: a paced source streams from the moment realization 0
+    is computed instead of after the whole experiment, and an unpaced one overlaps the
+    simulation with the recording. Blocks carry ``first_sample`` counted within the
+    realization and the realization index. Columns: force channel(s) first (quantity
+    ``force``), then the responses.
     """
 
     kind = "simulated"
@@ -319,6 +325,17 @@ class SimulatedSource(Source):
         self._data: np.ndarray | None = None
         self._results: dict[int, dict[str, Any]] = {}
         self._cached: tuple[int, np.ndarray] | None = None  # last simulated realization
+        # background production (see Notes): realizations computed ahead of the reader
+        self._ready: queue.Queue[Any] = queue.Queue(maxsize=1)
+        self._producer: threading.Thread | None = None
+        self._halt = threading.Event()
+        self._lock_sim = threading.RLock()  # one simulation at a time (reader or producer)
+        self._r0_run: SimulationResult | None = None  # realization 0's run, for verify
+        self._verify_error: dict[str, float] | None = None
+        self._lock_verify = threading.Lock()
+        self._checker: threading.Thread | None = None
+        self._check_error: BaseException | None = None
+        self._frf_attachment: list[tuple[str, str, bytes]] | None = None
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -355,15 +372,20 @@ class SimulatedSource(Source):
         """The excitation signal (all realizations)."""
         return self._ms
 
-    def simulate_realization(self, r: int) -> np.ndarray:
-        """Noisy channel data of realization ``r``, shape (n_samples, n_channels)."""
-        exc = self.excitation
-        n_per = exc.samples_per_period
+    def _sim_inputs(self, r: int) -> tuple[np.ndarray, np.ndarray, list[str]]:
+        """Force (n_samples, n_inputs), response DOFs and quantities of realization ``r``."""
         force = np.zeros((self._ms.signal.shape[1], self.model.n_inputs))
         force[:, 0] = self._ms.signal[r]  # the multisine drives the first input
         resp = [c for c in self._channels if not c.is_force]
         dofs = np.array([self._dof_of[c.name] for c in resp], dtype=np.int64)
         qs = sorted({c.quantity for c in resp}, key=RESPONSE_QUANTITIES.index)
+        return force, dofs, qs
+
+    def simulate_realization(self, r: int) -> np.ndarray:
+        """Noisy channel data of realization ``r``, shape (n_samples, n_channels)."""
+        exc = self.excitation
+        n_per = exc.samples_per_period
+        force, dofs, qs = self._sim_inputs(r)
         res = simulate(self.model, force, self._sample_rate_hz, oversample=self.options.oversample,
                        periodic=n_per, dofs=dofs, quantities=qs, passband=self.options.passband,
                        count_from=exc.transient_periods * n_per)
@@ -387,15 +409,84 @@ class SimulatedSource(Source):
                                 "iterations_max": res.iterations_max,
                                 "unconverged_steps": res.unconverged_steps,
                                 "internal_rate_hz": res.internal_rate_hz}
-        if self.options.verify and r == 0 and self.model.nonlinearities:
-            fine = simulate(self.model, force, self._sample_rate_hz,
-                            oversample=2 * self.options.oversample, periodic=n_per, dofs=dofs,
-                            quantities=qs, passband=self.options.passband)
-            info["error_vs_double_rate"] = _relative_error(res, fine, qs, n_per * exc.transient_periods)
+        if r == 0:
+            self._r0_run = res
         self._results[r] = info
         data = self._add_noise(clean, r)
         self._cached = (r, data)
         return data
+
+    def verify_integration(self) -> dict[str, float] | None:
+        """Relative error of realization 0 against a run at twice the internal rate.
+
+        Stored in ``run_info(0)['error_vs_double_rate']`` (None when ``verify`` is off or
+        the model is linear). Simulates realization 0 first if needed.
+        """
+        if not (self.options.verify and self.model.nonlinearities):
+            return None
+        with self._lock_verify:
+            if self._verify_error is None:
+                # independent of realization 0's run: in the background it runs alongside it
+                force, dofs, qs = self._sim_inputs(0)
+                exc = self.excitation
+                n_per = exc.samples_per_period
+                fine = simulate(self.model, force, self._sample_rate_hz,
+                                oversample=2 * self.options.oversample, periodic=n_per,
+                                dofs=dofs, quantities=qs, passband=self.options.passband)
+                info = self.run_info(0, verify=False)
+                assert self._r0_run is not None
+                self._verify_error = _relative_error(self._r0_run, fine, qs,
+                                                     n_per * exc.transient_periods)
+                info["error_vs_double_rate"] = self._verify_error
+                self._r0_run = None
+        return self._verify_error
+
+    # ------------------------------------------------------------------ background production
+    def _start(self) -> None:
+        if self._producer is None:
+            self._producer = threading.Thread(target=self._produce, name="fnsi-lab-sim",
+                                              daemon=True)
+            self._producer.start()
+            # the 2x-rate check and the truth FRF on a second thread (a second core)
+            self._checker = threading.Thread(target=self._check, name="fnsi-lab-sim-check",
+                                             daemon=True)
+            self._checker.start()
+
+    def _check(self) -> None:
+        try:
+            self.verify_integration()
+            if not self._halt.is_set():
+                self._frf_attachment = self.truth_attachments()
+        except BaseException as exc:  # noqa: BLE001 - re-raised by describe_at_end
+            self._check_error = exc
+
+    def _close(self) -> None:
+        self._halt.set()
+
+    def _produce(self) -> None:
+        """Thread: realizations in order, then the integration check and the truth FRF."""
+        try:
+            for r in range(self._realization, self.excitation.realizations):
+                with self._lock_sim:
+                    cached = self._cached
+                    data = (cached[1] if cached is not None and cached[0] == r
+                            else self.simulate_realization(r))
+                    self._cached = None
+                while not self._halt.is_set():
+                    try:
+                        self._ready.put((r, data), timeout=0.2)
+                        break
+                    except queue.Full:
+                        continue
+                if self._halt.is_set():
+                    return
+        except BaseException as exc:  # noqa: BLE001 - handed to the reader, raised there
+            while not self._halt.is_set():
+                try:
+                    self._ready.put(exc, timeout=0.2)
+                    return
+                except queue.Full:
+                    continue
 
     def _add_noise(self, clean: np.ndarray, r: int) -> np.ndarray:
         if not self.options.snr_db:
@@ -414,11 +505,13 @@ class SimulatedSource(Source):
         exc = self.excitation
         n_total = exc.samples_per_period * exc.periods
         if self._data is None:
-            if self._cached is not None and self._cached[0] == self._realization:
-                self._data = self._cached[1]
-            else:
-                self._data = self.simulate_realization(self._realization)
-            self._cached = None
+            try:
+                item = self._ready.get(timeout=timeout)
+            except queue.Empty:
+                return None  # still computing: the acquisition loop asks again
+            if isinstance(item, BaseException):
+                raise item
+            _, self._data = item
             self._position = 0
         start = self._position
         stop = min(start + self.block_size, n_total)
@@ -436,28 +529,61 @@ class SimulatedSource(Source):
         return block
 
     # ------------------------------------------------------------------ metadata
-    def run_info(self, r: int = 0) -> dict[str, Any]:
-        """Contact fractions, steady-state error... of realization ``r`` (simulates it if needed)."""
+    def run_info(self, r: int = 0, *, verify: bool = True) -> dict[str, Any]:
+        """Contact fractions, steady-state error... of realization ``r`` (simulates it if
+        needed; with ``verify``, realization 0 also gets ``error_vs_double_rate``)."""
         if r not in self._results:
-            self.simulate_realization(r)
+            with self._lock_sim:
+                if r not in self._results:
+                    self.simulate_realization(r)
+        if r == 0 and verify:
+            self.verify_integration()
         return self._results[r]
 
     def describe(self) -> dict[str, Any]:
         """Base dict plus ``excitation``, ``model`` and ``truth`` (simulates realization 0)."""
+        return self._describe(self.truth())
+
+    def describe_at_start(self) -> dict[str, Any]:
+        """:meth:`describe` without the run-dependent truth (contact fractions, steady-state
+        and integration errors), so that recording starts before any simulation;
+        :meth:`describe_at_end` completes it."""
+        return self._describe(self._truth(self._results.get(0)))
+
+    def describe_at_end(self, finished: bool = True) -> tuple[dict[str, Any], list]:
+        """Metadata and attachments known once the run is over: the complete ``truth`` and
+        the truth FRF. ``finished=False`` (interrupted) returns what is already known."""
+        if finished and self._checker is not None:
+            self._checker.join()
+            if self._check_error is not None:
+                raise self._check_error
+        elif finished:
+            self.run_info(0)
+        info = self._results.get(0)
+        attachments = list(self._frf_attachment or [])
+        if finished and not attachments:
+            attachments = self.truth_attachments()
+        return ({"truth": self._truth(info)} if info is not None else {}), attachments
+
+    def _describe(self, truth: dict[str, Any]) -> dict[str, Any]:
         out = super().describe()
         exc = self.excitation.to_dict()
         exc["excited_lines"] = [int(k) for k in self._ms.excited_lines]
         exc["sample_rate_hz"] = self._sample_rate_hz
         out["excitation"] = exc
         out["model"] = {k: v for k, v in self.model.summary().items() if k != "nonlinearities"}
-        out["truth"] = self.truth()
+        out["truth"] = truth
         return out
 
     def truth(self) -> dict[str, Any]:
-        """The exact model behind the data (JSON-able)."""
+        """The exact model behind the data (JSON-able; simulates realization 0 if needed)."""
+        return self._truth(self.run_info(0))
+
+    def _truth(self, info: dict[str, Any] | None) -> dict[str, Any]:
+        """The truth; the run-dependent entries are None when ``info`` is None."""
         m = self.model
         modes = m.modes
-        info = self.run_info(0)
+        info = info or {}
         chan_of_dof: dict[int, str] = {}
         for ch, d in m.measured.items():
             chan_of_dof.setdefault(d, ch)
@@ -474,14 +600,15 @@ class SimulatedSource(Source):
             "modes": [{"frequency_hz": float(f), "damping_ratio": float(z)}
                       for f, z in zip(modes.frequency_hz, modes.damping_ratio)],
             "nonlinearities": nls,
-            "contact_fraction": info["contact_fraction"],
+            "contact_fraction": info.get("contact_fraction"),
             "contact_fraction_note": "fraction of internal steps with the stop closed, over "
                                      "the non-transient periods of realization 0",
-            "steady_state_error": info["steady_state_error"],
+            "steady_state_error": info.get("steady_state_error"),
             "integration": {
                 "method": "exact modal propagation (FOH nonlinear forces, implicit), "
                           "frequency-domain anti-alias filter",
-                "internal_rate_hz": info["internal_rate_hz"],
+                "internal_rate_hz": info.get("internal_rate_hz",
+                                             self.options.oversample * self._sample_rate_hz),
                 "passband_hz": self.options.passband * self._sample_rate_hz,
                 "error_vs_double_rate": info.get("error_vs_double_rate"),
             },
