@@ -328,7 +328,7 @@ def load_experiment(path: str | Path | None = None) -> ExperimentConfig:
     p = Path(path)
     if not p.exists() and p.parent == Path(".") and packaged_experiment(p.name) is not None:
         p = packaged_experiment(p.name)  # type: ignore[assignment]
-    data, text = load_yaml(p)
+    data, text = load_yaml(p, missing_fix="check the path, or omit --config to use the default")
     return parse_experiment(data, file=str(path), text=text)
 
 

@@ -26,14 +26,17 @@ from fnsi_lab.errors import ConfigError
 _MISSING = object()
 
 
-def load_yaml(path: str | Path) -> tuple[Any, str]:
-    """Read a YAML file, returning (data, text); every failure is a one-line ConfigError."""
+def load_yaml(path: str | Path, *, missing_fix: str = "check the path") -> tuple[Any, str]:
+    """Read a YAML file, returning (data, text); every failure is a one-line ConfigError.
+
+    ``missing_fix`` is the advice when the file does not exist (only a caller whose option
+    has a default may suggest omitting it).
+    """
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
-        raise ConfigError("file not found", file=str(path),
-                          fix="check the path, or omit --config to use the default") from None
+        raise ConfigError("file not found", file=str(path), fix=missing_fix) from None
     except (OSError, UnicodeDecodeError) as exc:
         raise ConfigError(f"cannot read: {exc}", file=str(path)) from None
     try:

@@ -384,6 +384,12 @@ def identify_auto(data, options: AutoOptions | dict | None = None, *,
                                 clear_ratio=options.clear_ratio)
     conf["final_separation_ratio"] = final_ratio if np.isfinite(final_ratio) else None
 
+    if n_sel == max(orders) and len(orders) > 1:  # no minimum inside the sweep
+        conf.setdefault("warnings", []).append(
+            f"the selected order {n_sel} is the last of the sweep {min(orders)}..{max(orders)}: "
+            "the criterion may keep decreasing beyond it; extend the sweep (e.g. --orders "
+            f"{min(orders)}:{2 * max(orders)}) or check the band and the noise")
+
     coefs: dict = {}
     if coefficients is not None:
         t5 = time.perf_counter()

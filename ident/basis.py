@@ -217,8 +217,9 @@ class Nonlinearity:
         vec = np.zeros(len(names))
         for ch, w in self.channels.items():
             if ch not in names:
-                raise ChannelError(f"nonlinearity {self.name!r}: channel {ch!r} is not a "
-                                   f"measured output (outputs: {names})")
+                raise ChannelError(f"nonlinearity {self.name!r}: channel {ch!r} is not among "
+                                   f"the identified outputs {names} (list it under outputs: "
+                                   "in the ident config, or check its name)")
             vec[names.index(ch)] += w
         return vec
 

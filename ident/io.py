@@ -96,7 +96,13 @@ def input_from_arrays(arrays: Mapping[str, Any], path: str = "",
         raise IdentDataError(f"{path}: 'fs' must be one positive number, got {arrays['fs']!r}")
     N = samples_per_period
     if "N" in arrays:
-        n_file = int(np.asarray(arrays["N"]).reshape(-1)[0])
+        try:
+            n_file = int(np.asarray(arrays["N"]).reshape(-1)[0])
+        except (TypeError, ValueError, IndexError):
+            n_file = 0
+        if n_file < 1:  # not "no N": a wrong value (samples per period)
+            raise IdentDataError(f"{path}: 'N' (samples per period) must be an integer >= 1, "
+                                 f"got {np.asarray(arrays['N'])!r}; fix it or drop N")
         if N is not None and N != n_file:
             raise IdentDataError(f"{path}: N={n_file} in the file but samples_per_period={N}")
         N = n_file

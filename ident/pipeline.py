@@ -555,6 +555,7 @@ def identify_input(inp: IdentInput, cfg: IdentConfig, *, order: int | None = Non
                             progress=progress, coefficients=coefficients if basis else None,
                             spread=spread)
         session.timings_s["auto"] = time.perf_counter() - t1
+        session.warnings.extend(res.confidence.get("warnings", []))  # e.g. order at sweep end
         ident = Identification(session, res.final_model, "auto", auto=res)
     t2 = time.perf_counter()
     ident.coefficient_spectra = _coefficient_spectra(session, ident.model)

@@ -395,3 +395,17 @@ def test_bus_state_change_reported(tmp_path: Path, channel: str,
             src.read(timeout=0.1)
             events = [e for e in src.drain_events() if e.kind == "bus_state"]
     assert events[0].detail == {"state": "ERROR"}
+
+
+def test_a_silent_bus_is_reported(tmp_path: Path, channel: str, caplog) -> None:
+    """No sender on the bus: after SILENCE_WARNING_S a bus_silent event and one warning."""
+    src = CanSource.from_config(make_config(tmp_path, channel))
+    src.SILENCE_WARNING_S = 0.3
+    with caplog.at_level("WARNING", logger="fnsi_lab.daq"), src:
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 1.0:
+            assert src.read(timeout=0.1) is None
+    kinds = [e.kind for e in src.drain_events()]
+    assert kinds.count("bus_silent") == 1  # once per silence, not once per read
+    assert src.stats.problems.get("bus_silent") == 1
+    assert sum("no CAN frame received" in r.getMessage() for r in caplog.records) == 1

@@ -428,3 +428,23 @@ def test_ident_band_above_nyquist_is_refused(tmp_path, write_recording, capsys):
     ident.write_text("band_hz: [5, 800]\n")
     assert main(["ident", str(src), "--config", str(ident), "--order", "4"]) == 2
     assert "Nyquist" in _one_line_error(capsys.readouterr().err)
+
+
+def test_selected_order_at_the_end_of_the_sweep_is_flagged(tmp_path, capsys):
+    """A 3-DOF chain needs order 6: a 2..4 sweep ends before the criterion's minimum."""
+    config = _experiment(tmp_path)
+    rec = tmp_path / "chain.mcap"
+    assert main(["acquire", "--config", str(config), "--out", str(rec), "--quiet",
+                 "--no-info"]) == 0
+    out = tmp_path / "r.json"
+    assert main(["ident", str(rec), "--config", "lumped-cubic", "--auto", "--orders", "2:4",
+                 "--json", str(out), "--quiet"]) == 0
+    import json
+    result = json.loads(out.read_text())
+    assert result["order"] == 4
+    assert any("last of the sweep 2..4" in w for w in result["warnings"])
+    # a sweep that contains the minimum says nothing of the kind
+    assert main(["ident", str(rec), "--config", "lumped-cubic", "--auto", "--orders", "2:12",
+                 "--json", str(out), "--force", "--quiet"]) == 0
+    result = json.loads(out.read_text())
+    assert result["order"] < 12 and not any("last of the sweep" in w for w in result["warnings"])

@@ -42,6 +42,7 @@ Frequent kinds are limited to one event per second of bus time; the event's
 from __future__ import annotations
 
 import hashlib
+import logging
 import threading
 import time
 from collections import deque
@@ -493,6 +494,8 @@ class CanSource(Source):
                 self._limited("queue_overflow", time.time_ns(), n=n, frames_lost=n,
                               queue_size=self._queue_size)
             if queue:
+                self._last_frame_s = time.monotonic()
+                self._silence_reported = False
                 # a bounded batch, so a block is returned soon after it fills
                 for _ in range(min(len(queue), 4 * self._block_size * self._n_msgs + 16)):
                     self._handle(queue.popleft())
@@ -502,10 +505,28 @@ class CanSource(Source):
                 continue
             if not self._rx.alive:
                 return None
+            self._check_silence()
             wait = 0.5 if deadline is None else deadline - time.monotonic()
             if wait <= 0:
                 return None
             self._wake.wait(min(wait, 0.5))
+
+    #: Seconds without any frame after which a silent bus is reported (once per silence).
+    SILENCE_WARNING_S = 2.0
+
+    def _check_silence(self) -> None:
+        """Warn (event ``bus_silent`` + a logged warning) when no frame arrives at all."""
+        last = getattr(self, "_last_frame_s", None)
+        if last is None:
+            self._last_frame_s = last = time.monotonic()
+        silent = time.monotonic() - last
+        if silent < self.SILENCE_WARNING_S or getattr(self, "_silence_reported", False):
+            return
+        self._silence_reported = True
+        self._emit_event("bus_silent", seconds=round(silent, 1), bus=str(self._bus_kwargs))
+        logging.getLogger("fnsi_lab.daq").warning(
+            "warning: no CAN frame received for %.1f s on %s; check the wiring, termination, "
+            "bitrate and that the sender is running", silent, self._bus_kwargs)
 
     def feed(self, msg: "can.Message") -> None:
         """Decode one frame now, bypassing the bus (replays, benchmarks, tests)."""
