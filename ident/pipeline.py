@@ -31,7 +31,7 @@ from fnsi_lab.ident.io import IdentInput, select_channels
 from fnsi_lab.ident.options import parse_orders
 from fnsi_lab.ident.parameter_search import (DEFAULT_SEARCH_ORDER, estimate_basis_parameters,
                                              has_unknown_parameters)
-from fnsi_lab.ident.periodic import FrequencyData, prepare_frequency_data, with_basis
+from fnsi_lab.ident.periodic import FrequencyData, data_report, prepare_frequency_data, with_basis
 from fnsi_lab.progress import Progress
 
 __all__ = ["IdentSession", "Identification", "prepare_session", "identify_input",
@@ -414,6 +414,7 @@ class Identification:
         frf = self.frf()
         out["frf"] = {k: ({"re": v.real, "im": v.imag} if isinstance(v, np.ndarray)
                           and np.iscomplexobj(v) else v) for k, v in frf.items()}
+        out.update(data_report(data))  # noise (source, level per output), excitation, offsets
         out["warnings"] = list(s.warnings)
         out["timings_s"] = {**s.timings_s, **out.get("timings_s", {})}
         return json_safe(out)
