@@ -778,3 +778,42 @@ def with_basis(data: FrequencyData, basis: Sequence[Nonlinearity]) -> FrequencyD
     sigma = np.concatenate([np.ones(m), motion.force_rms / rms_h])
     E = np.concatenate([data.E[:, :m], H * sigma[m:]], axis=1)
     return replace(data, E=E, input_scale=sigma, basis_names=names)
+
+
+def data_report(data: FrequencyData) -> dict:
+    """What the data are made of, for the result file: noise, excitation, offsets.
+
+    Returns
+    -------
+    dict
+        ``noise``: ``source`` (``periods``, ``non-excited lines`` or ``none``), per output
+        ``level`` (noise RMS over the excited lines relative to the output's RMS there) and
+        ``snr_db``, and a ``statement``; ``excitation``: how the excited lines were found
+        (:class:`ident.excitation.ExcitationGrid`, mains lines left out); ``offsets``: DC of
+        every channel and what was done with it.
+    """
+    src = data.noise_source
+    noise: dict[str, Any] = {"source": src}
+    exc = np.asarray(data.excited, bool)
+    if data.noise_var is not None and exc.any():
+        sig = np.mean(np.abs(data.Y[exc]) ** 2, axis=0)
+        var = np.mean(np.asarray(data.noise_var)[exc], axis=0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rel = np.sqrt(var / sig)
+        noise["outputs"] = {name: {"level": float(r), "snr_db": float(-20 * np.log10(r))
+                                   if r > 0 else None}
+                            for name, r in zip(data.output_names, rel)}
+        noise["statement"] = (
+            f"noise estimated from the {src}: median output noise "
+            f"{100 * float(np.median(rel)):.3g} % of the response RMS on the excited lines"
+            + ("" if src == "periods" else
+               " (off-grid lines: noise, hum and even-order distortion; the unmodelled odd "
+               "distortion on the excited lines is not in it)"))
+    else:
+        noise["outputs"] = None
+        noise["statement"] = (
+            "no noise estimate: one period per realisation and no non-excited line inside "
+            "the excited band (a full multisine). The fit is unweighted, and the detection "
+            "test judges each mode against the model's residual only, which an over-fitting "
+            "model makes small; record two or more steady periods, or use an odd multisine.")
+    return {"noise": noise, "excitation": data.excitation, "offsets": data.offsets}
