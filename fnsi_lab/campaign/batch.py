@@ -497,11 +497,19 @@ def dask_client(scheduler: str = "local", workers: int | None = None, *,
     from distributed import Client, LocalCluster
 
     if scheduler == "local":
+        import dask
+
         n = int(workers or os.cpu_count() or 1)
-        # one thread per worker process: the identification is numpy/scipy-bound and the
-        # GIL would serialise a second thread; no dashboard (bokeh is not a dependency)
-        with LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                          dashboard_address=None, silence_logs=logging.ERROR) as cluster, \
+        # One thread per worker process: the identification holds the GIL between its many
+        # small solves. No dashboard (bokeh is not a dependency). Dask's worker defaults
+        # cost an identification 1.5-2.5x its time (measured, docs/campaigns.md): the
+        # statistical profiler samples the task's thread every 10 ms, and
+        # MALLOC_TRIM_THRESHOLD_ turns off glibc's adaptive mmap threshold, so every large
+        # temporary array is mapped, zero-filled and unmapped again.
+        with dask.config.set({"distributed.worker.profile.enabled": False,
+                              "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}), \
+                LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                             dashboard_address=None, silence_logs=logging.ERROR) as cluster, \
                 Client(cluster) as client:
             yield client
         return
