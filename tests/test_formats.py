@@ -374,8 +374,10 @@ def test_export_errors_are_one_line(result_json, tmp_path, capsys):
     out = str(tmp_path / "x.uff")
     err = _error_line(capsys, ["export", str(result_json), "--uff", out])
     assert "X1" in err and "--map" in err          # names that do not say node/direction
-    err = _error_line(capsys, ["export", str(result_json), "--uff", out, "--map", "X1=a:+Z"])
-    assert "'a'" in err
+    err = _error_line(capsys, ["export", str(result_json), "--uff", out, "--map", "X1=1:+Q"])
+    assert "'+Q'" in err and "--map X1" in err
+    err = _error_line(capsys, ["export", str(result_json), "--uff", out, "--map", "X1=0:+Z"])
+    assert "'0'" in err
     res = json.loads(result_json.read_text())
     del res["modes"][1]["shape"]
     broken = tmp_path / "old.json"

@@ -8,13 +8,15 @@
 ``fnsi-lab export`` is the command-line form (``docs/formats.md``).
 """
 
-from fnsi_lab.export.dofs import Dof, assign_dofs, parse_mapping, read_mapping_file
+from fnsi_lab.export.dofs import (Dof, assign_dofs, channel_table_mapping, parse_mapping,
+                                  read_mapping_file)
 from fnsi_lab.export.result import ResultArrays, ResultFileError, load_result, result_from_dict
 from fnsi_lab.export.tables import write_tables
 from fnsi_lab.export.uff import (eigenvalue, mode_from_eigenvalue, number_field, uff55_mode,
                                  uff58_frf, uff_text)
 
-__all__ = ["Dof", "ResultArrays", "ResultFileError", "assign_dofs", "eigenvalue",
+__all__ = ["Dof", "ResultArrays", "ResultFileError", "assign_dofs", "channel_table_mapping",
+           "eigenvalue",
            "load_result", "mode_from_eigenvalue", "number_field", "parse_mapping",
            "read_mapping_file", "result_from_dict", "uff55_mode", "uff58_frf", "uff_text",
            "write_tables"]

@@ -44,8 +44,8 @@ def register(subparsers) -> None:
                    help=f"folder for the CSV tables ({', '.join(CSV_FILES)}); created if "
                         "missing")
     p.add_argument("--map", nargs="+", default=[], metavar="NAME=NODE:DIR",
-                   help="node number and direction of channels whose names do not say, "
-                        "e.g. X1=101:+Z")
+                   help="node (number or label) and direction of channels whose names do "
+                        "not say, e.g. X1=101:+Z F-NC2W-Z=NC2W:+Z")
     p.add_argument("--map-file", default=None, metavar="DOFS.csv",
                    help="CSV rows channel,node,direction (same meaning as --map)")
     p.add_argument("--recording", default=None, metavar="F.mcap",

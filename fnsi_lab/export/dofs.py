@@ -4,10 +4,11 @@ UFF files address a measurement by an integer node number and a direction code. 
 channel named like ``NC2-Z`` or ``12:+X`` says both (:func:`fnsi_lab.daq.formats.dof.
 parse_node_direction`); node labels that are not integers (``NC2``) are numbered 1, 2, ...
 in order of appearance, skipping the numbers that integer labels already use. Channels
-whose names do not say (``X1``, ``F-X3``) take node and direction from the recording's
-channel table (:func:`channel_table_mapping`; a UFF 58 import keeps the response node and
-direction there) or from a mapping, ``NAME=NODE:DIR`` (``--map``) or a CSV file of
-``channel,node,direction`` rows (``--map-file``).
+whose names do not say (``X1``, ``F-X3``) or say another node than meant (a force named
+``F-NC2W-Z`` acts at node ``NC2W``, not ``F-NC2W``) take node and direction from the
+recording's channel table (:func:`channel_table_mapping`; a UFF 58 import keeps the
+response node and direction there) or from a mapping, ``NAME=NODE:DIR`` (``--map``) or a
+CSV file of ``channel,node,direction`` rows (``--map-file``); NODE is a number or a label.
 """
 
 from __future__ import annotations
@@ -56,20 +57,23 @@ def _parse_target(text: str, *, source: str, channel: str) -> tuple[str, str]:
         raise ConfigError(str(exc), file=source or None, field=f"--map {channel}",
                           fix="use X, Y, Z, RX, RY or RZ with an optional sign") from None
     node, direction = node.strip(), direction.strip().upper()
-    if not node.lstrip("-").isdigit() or int(node) < 1:
-        raise ConfigError(f"node {node!r} of channel {channel!r} is not a positive integer",
+    if node.lstrip("+-").isdigit() and int(node) < 1:
+        raise ConfigError(f"node {node!r} of channel {channel!r} is not a positive number",
                           file=source or None, field=f"--map {channel}",
-                          fix="UFF nodes are numbers: write e.g. X1=101:+Z")
+                          fix="UFF nodes are numbered from 1: write e.g. X1=101:+Z")
     return node, ("-" if direction.startswith("-") else "+") + direction.lstrip("+-")
 
 
 def parse_mapping(items: Sequence[str]) -> dict[str, tuple[str, str]]:
-    """``["X1=101:+Z", ...]`` -> ``{"X1": ("101", "+Z")}``.
+    """``["X1=101:+Z", "F-NC2W-Z=NC2W:+Z"]`` -> ``{"X1": ("101", "+Z"), ...}``.
+
+    A node is a UFF node number or a label (numbered like the labels of channel names, so
+    ``NC2W`` is the node of the channel ``NC2W-Z``).
 
     Raises
     ------
     ConfigError
-        An item that is not ``NAME=NODE:DIR`` with an integer node and a known direction.
+        An item that is not ``NAME=NODE:DIR``, a node number below 1, an unknown direction.
     """
     out: dict[str, tuple[str, str]] = {}
     for item in items:
