@@ -345,7 +345,7 @@ def load_drive_definition(path: str | Path) -> DriveDefinition:
                               phases=ms["phases"])
         fs = float(data["sample_rate_hz"])
         vpn = sc.get("volts_per_newton")
-        definition, signal = design_drive(ex, fs, volts_per_newton=None if vpn is None else float(vpn))
+        definition, _ = design_drive(ex, fs, volts_per_newton=None if vpn is None else float(vpn))
         lines = np.asarray(data["excited_lines"], dtype=np.int64)
         phases = np.asarray(data["phases_rad"], dtype=np.float64)
         stored_hash = str(data["signal_sha256"])
@@ -358,7 +358,6 @@ def load_drive_definition(path: str | Path) -> DriveDefinition:
         raise ConfigError("the lines, phases or sample hash do not reproduce from the stated "
                           "multisine (edited file, or written by another version)", file=str(p),
                           fix="export the drive again with 'fnsi-lab excitation'")
-    del signal
     return replace(definition, file=dict(data.get("file", {})))
 
 
