@@ -183,6 +183,47 @@ def test_uff_even_increment_with_six_digits_gives_the_round_rate(tmp_path):
     assert rate_from_increment(1 / 3000, path="p", field="f") == 3000.0
 
 
+def test_csv_layouts_of_spreadsheet_exports(tmp_path):
+    from fnsi_lab.daq.formats import plan_import, read_lab_file
+
+    x = np.array([[0.5, 1.25e-3, -2.0e-4], [-0.25, 1.5e-3, 3.0e-4], [1.0, -1.0e-3, 0.0]])
+    # semicolon-separated with decimal commas, units in a second header line, rate and
+    # period in '#' lines
+    eu = tmp_path / "eu.csv"
+    eu.write_text("# sample_rate_hz: 2048\n# samples_per_period: 3\nForce;NC1-Z;NC2:-Y\n"
+                  "N;mm;mm\n" + "".join(";".join(f"{v:.6g}".replace(".", ",") for v in row)
+                                         + "\n" for row in x))
+    # tab-separated, units in brackets, a time column giving the rate
+    tab = tmp_path / "tab.txt"
+    tab.write_text("time (s)\tForce [N]\tNC1-Z [mm]\tNC2:-Y [mm]\n" + "".join(
+        "\t".join(f"{v:.6g}" for v in (k / 2048, *row)) + "\n" for k, row in enumerate(x)))
+    for path in (eu, tab):
+        table = read_lab_file(path)
+        np.testing.assert_array_equal(table.data, x)
+        assert table.sample_rate_hz == 2048.0
+        assert [c.unit for c in table.channels] == ["N", "mm", "mm"]
+        assert [(c.node, c.direction) for c in table.channels] == [("", ""), ("NC1", "+Z"),
+                                                                  ("NC2", "-Y")]
+        plan = plan_import(table, samples_per_period=3)
+        assert [c.quantity for c in plan.channels] == ["force", "displacement", "displacement"]
+    assert read_lab_file(eu).samples_per_period == 3
+
+
+def test_interrupted_import_leaves_no_file(lab, tmp_path):
+    from fnsi_lab.daq.formats import plan_import, read_lab_file, write_recording
+
+    table = read_lab_file(lab["files"]["tdms"])
+    plan = plan_import(table, inputs=["F-X3"])
+
+    def interrupt(done: int, total: int) -> None:
+        raise KeyboardInterrupt
+
+    out = tmp_path / "cut.mcap"
+    with pytest.raises(KeyboardInterrupt):
+        write_recording(table, plan, out, on_block=interrupt)
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_node_and_direction_from_names():
     from fnsi_lab.daq.formats import parse_node_direction
 

@@ -245,7 +245,8 @@ def write_recording(table: LabTable, plan: ImportPlan, out: str | os.PathLike[st
         From :func:`plan_import`.
     out : path-like
         The ``.mcap`` file (created or replaced; check it first with
-        :func:`fnsi_lab.outputs.check_output_path`).
+        :func:`fnsi_lab.outputs.check_output_path`). It is written under a temporary name
+        and renamed when complete.
     options : dict, optional
         The import options, stored in the ``source`` metadata.
     on_block : callable (samples_done, samples_total), optional
@@ -265,12 +266,21 @@ def write_recording(table: LabTable, plan: ImportPlan, out: str | os.PathLike[st
     # Blocks of one period (or 4096 samples): recorded sizes stay moderate either way.
     block_samples = min(max(block_samples, 256), 1 << 16)
     meta = import_metadata(table, plan, dict(options or {}))
-    with Recorder(out, plan.channels, fs, metadata=meta) as rec:
-        for seq, start in enumerate(range(0, total, block_samples)):
-            chunk = np.ascontiguousarray(data[start:start + block_samples])
-            rec.write_block(Block(data=chunk, channels=plan.channels, sample_rate_hz=fs,
-                                  sequence=seq, first_sample=start,
-                                  t0_ns=int(round(start * 1e9 / fs))))
-            if on_block is not None:
-                on_block(min(start + block_samples, total), total)
-    return Path(out)
+    final = Path(out)
+    # Unlike an acquisition, nothing reads the file while it grows: write a temporary
+    # sibling and rename it, so an interrupted import leaves no partial recording behind.
+    tmp = final.with_name(f".{final.name}.partial-{os.getpid()}")
+    try:
+        with Recorder(tmp, plan.channels, fs, metadata=meta) as rec:
+            for seq, start in enumerate(range(0, total, block_samples)):
+                chunk = np.ascontiguousarray(data[start:start + block_samples])
+                rec.write_block(Block(data=chunk, channels=plan.channels, sample_rate_hz=fs,
+                                      sequence=seq, first_sample=start,
+                                      t0_ns=int(round(start * 1e9 / fs))))
+                if on_block is not None:
+                    on_block(min(start + block_samples, total), total)
+        os.replace(tmp, final)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return final
