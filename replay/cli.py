@@ -194,7 +194,7 @@ class LiveRun:
                   "latency_s": self.latencies[-1]}
         if st is not None:
             values.update(dropped_blocks=st.dropped_blocks, skipped_updates=st.skipped,
-                          periods=st.periods)
+                          periods=st.periods, behind=st.behind)
         self.vlog.log_status(self.rec, update.acq_time_s, values,
                              f"update {update.update}: {update.n_periods} steady periods, "
                              f"identified in {update.ident_s:.2f} s")
@@ -280,6 +280,10 @@ def _finish_report(run: LiveRun, service: Any, sinks: Any, wall_s: float) -> Non
           f"{st.updates} identifications, {st.skipped} skipped (newer data arrived), "
           f"{st.dropped_blocks} blocks dropped, {st.lost_samples} samples lost, "
           f"{st.failures} failures{(' (' + st.last_error + ')') if st.last_error else ''}")
+    if st.behind:
+        print(f"identification could not keep up: {st.behind} of {st.updates} took longer than "
+              f"the {st.update_budget_s:.2f} s between updates (each ran on the newest data; "
+              f"{st.skipped} snapshots skipped)")
     if lat:
         import numpy as np
 

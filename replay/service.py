@@ -202,6 +202,19 @@ class ServiceStatus:
     started_s: float = field(default_factory=time.monotonic)
     #: Drive vs acquisition clock of the latest snapshot (daq.periodicity.ClockCheck).
     clock: Any = None
+    #: Wall-clock seconds between complete steady periods as they arrive (median of the
+    #: last few; one period of signal for a real-time source).
+    period_interval_s: float = math.nan
+    #: Time an identification may take to keep pace: ``every`` period intervals.
+    update_budget_s: float = math.nan
+    #: Identifications that took longer than ``update_budget_s`` (the service could not
+    #: identify every due update; the newer snapshots replaced the waiting ones).
+    behind: int = 0
+
+    @property
+    def keeping_up(self) -> bool:
+        """The last identification finished within the budget (True before any)."""
+        return not (self.last_ident_s > self.update_budget_s)
 
     @property
     def rate(self) -> float:
@@ -221,6 +234,10 @@ class ServiceStatus:
             parts.append(f"ident {self.last_ident_s:.2f}s")
         if not math.isnan(self.last_latency_s):
             parts.append(f"latency {self.last_latency_s:.2f}s")
+        if self.behind:
+            parts.append(f"BEHIND {self.behind}x: " + (
+                f"ident {self.last_ident_s:.2f}s > {self.update_budget_s:.2f}s per update"
+                if not self.keeping_up else "keeping up again"))
         if self.failures:
             parts.append(f"failures {self.failures}")
         if self.clock is not None and math.isfinite(self.clock.offset_ppm):
@@ -327,6 +344,8 @@ class IdentService:
         self.truth = truth
         self.excitation = excitation
         self.status = ServiceStatus()
+        self._last_arrival_s: float | None = None
+        self._intervals: list[float] = []
         self.updates: list[ServiceUpdate] = []
         self._assembler = PeriodAssembler(self.n, len(self.channels))
         self._periods: dict[int, list[CompletePeriod]] = {}
@@ -469,11 +488,21 @@ class IdentService:
             if len(kept) > self.max_periods:
                 del kept[0]
             if self._is_steady(p, kept):
+                self._note_arrival(p.received_s)
                 self.status.steady_periods += 1
                 self._since_update += 1
                 if self._since_update >= self.every and self._n_steady() >= self.min_periods:
                     self._post(p)
         return last
+
+    def _note_arrival(self, received_s: float) -> None:
+        """Track the wall-clock interval between steady periods (the identification budget)."""
+        if self._last_arrival_s is not None:
+            self._intervals.append(received_s - self._last_arrival_s)
+            del self._intervals[:-8]
+            self.status.period_interval_s = float(np.median(self._intervals))
+            self.status.update_budget_s = self.every * self.status.period_interval_s
+        self._last_arrival_s = received_s
 
     def acq_time_s(self, realization: int, time_ns: int) -> float:
         """Source time -> acquisition time running on across realizations (seconds)."""
@@ -552,6 +581,8 @@ class IdentService:
         ident_s = time.perf_counter() - t0
         self.status.updates += 1
         self.status.last_ident_s = ident_s
+        if ident_s > self.status.update_budget_s:  # NaN budget (one period so far): no verdict
+            self.status.behind += 1
         update = ServiceUpdate(update=self.status.updates, record=record, result=result,
                                n_periods=int(record.n_periods - record.transient_periods),
                                acq_time_s=self.acq_time_s(period.realization, period.end_ns),

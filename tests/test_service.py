@@ -170,6 +170,9 @@ def test_fast_source_slow_identification_skips_cleanly_and_recording_is_complete
         assert u.record.u.shape[1] == u.n_periods + u.record.transient_periods
     line = status.line(file_size_bytes=path.stat().st_size)
     assert "skipped" in line and "dropped" in line and "MB" in line
+    # ... and that it could not keep up: 0.15 s per identification against periods arriving
+    # every few milliseconds
+    assert status.update_budget_s < 0.15 and status.behind >= 1 and "BEHIND" in line
 
 
 def test_service_keeps_up_with_a_real_time_source():
@@ -183,6 +186,9 @@ def test_service_keeps_up_with_a_real_time_source():
     st = svc.finish(timeout=10)
     assert st.dropped_blocks == 0 and st.skipped == 0 and st.lost_samples == 0
     assert st.updates == 3 and st.max_latency_s < 1.0
+    # periods arrive every N / fs / 20 = 51 ms; the FRF identification takes milliseconds
+    assert 0.5 * N / FS / 20 < st.period_interval_s < 2 * N / FS / 20
+    assert st.behind == 0 and st.keeping_up and "BEHIND" not in st.line()
 
 
 def test_failures_are_counted_not_raised(channels):
