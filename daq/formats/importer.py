@@ -20,7 +20,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from fnsi_lab.daq.block import Block
-from fnsi_lab.daq.channels import QUANTITIES, ChannelInfo
+from fnsi_lab.daq.channels import ChannelInfo
 from fnsi_lab.daq.formats.errors import LabFileError
 from fnsi_lab.daq.formats.table import LabTable, check_rate
 
@@ -33,6 +33,9 @@ READERS: dict[str, tuple[str, str]] = {
     ".txt": ("fnsi_lab.daq.formats.csv_table", "read_csv"),
     ".tsv": ("fnsi_lab.daq.formats.csv_table", "read_csv"),
 }
+
+#: Quantities an output (response) channel can have.
+OUTPUT_QUANTITIES = ("displacement", "velocity", "acceleration")
 
 #: Samples per recorded block (one MCAP message); any size reads back the same.
 BLOCK_SAMPLES = 4096
@@ -134,7 +137,7 @@ def plan_import(table: LabTable, *, inputs: Sequence[str] | None = None,
     both = set(inputs or ()) & set(exclude)
     if both:
         raise LabFileError(f"channel {sorted(both)[0]!r} is in both --inputs and --exclude")
-    if output_quantity is not None and output_quantity not in QUANTITIES[:3]:
+    if output_quantity is not None and output_quantity not in OUTPUT_QUANTITIES:
         raise LabFileError(f"--output-quantity {output_quantity!r}: not one of displacement, "
                            "velocity, acceleration")
     kept = [j for j, n in enumerate(names) if n not in exclude]
@@ -164,7 +167,7 @@ def plan_import(table: LabTable, *, inputs: Sequence[str] | None = None,
                 raise LabFileError(f"{p}: channel {lab.name!r}: unit {lab.unit!r} does not say "
                                    "displacement, velocity or acceleration (fix: "
                                    "--output-quantity acceleration|velocity|displacement, or "
-                                   "--exclude it)")
+                                   f"--exclude {lab.name})")
             quantity = output_quantity
         else:
             quantity = lab.quantity
