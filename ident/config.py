@@ -144,7 +144,8 @@ def _clearance_spec(sec: Section, key: str, v: Any, parameter: str) -> tuple[flo
         return 0.0, ParameterSpace(parameter)
     if isinstance(v, list) and len(v) == 2 and all(_is_number(x) for x in v):
         if not 0 <= v[0] < v[1]:
-            raise sec.error(key, f"search interval {v} must be [low, high] with 0 <= low < high")
+            raise sec.error(key, f"search interval {v} must be [low, high] with 0 <= low < high",
+                            fix="e.g. [1.0, 2.0] (same length unit as the outputs)")
         return 0.0, ParameterSpace(parameter, interval=(float(v[0]), float(v[1])))
     if _is_number(v) and v >= 0:
         return float(v), None

@@ -1,0 +1,370 @@
+"""Basis parameters from the data (ident.parameter_search): clearances and exponents of
+simulated structures with known values, noise-free and noisy, relative and grounded stops,
+one- and two-sided, the refusals, the configuration syntax, the JSON/CLI/viewer outputs and
+the SmallSat (39 channels).
+
+Simulations: daq.sim (frequency-domain periodic steady state of the lumped chains and the
+SmallSat, sampled band-limited), so the errors below are those of the identification.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from fnsi_lab.ident.basis import Nonlinearity, ParameterSpace
+from fnsi_lab.ident.coefficients import nonlinear_coefficients, summarize_coefficients
+from fnsi_lab.ident.config import parse_ident_config
+from fnsi_lab.ident.errors import IdentConfigError, IdentError, NotIdentifiableError
+from fnsi_lab.ident import fnsi
+from fnsi_lab.ident.parameter_search import estimate_basis_parameters, search_spaces
+from fnsi_lab.ident.periodic import prepare_frequency_data, with_basis
+
+sim = pytest.importorskip("fnsi_lab.daq.sim")
+from fnsi_lab.daq.multisine import excited_lines, multisine  # noqa: E402
+from fnsi_lab.daq.sim.nonlinear import NonlinearElement  # noqa: E402
+
+FS, N = 1024.0, 8192
+BAND = (3, 150)
+GAPS = (4e-4, 5e-4)            # lumped_model('trilinear') defaults, m
+CONTACT = (2.0e4, 1.5e4)       # N/m
+
+
+def _simulate(model, periods=3, seed=1):
+    u = np.asarray(multisine(N, FS, (5, 60), 20.0, n_periods=periods, seed=seed).signal).reshape(-1, 1)
+    y = sim.simulate(model, u, FS, periodic=N).displacement
+    return u, y
+
+
+def _data(model, u, y, basis, transient=1):
+    return prepare_frequency_data(u=u, y=y, sample_rate_hz=FS, samples_per_period=N, basis=(),
+                                  motion_for=basis, band_hz=BAND, transient_periods=transient,
+                                  output_names=model.measured_names, input_names=model.input_names,
+                                  excited_lines=excited_lines(N, FS, (5, 60)))
+
+
+def _coefficients(data, basis, order=6, driving_point="X3"):
+    d = with_basis(data, basis)
+    dec = fnsi.subspace_decomposition(d, max_order=12)
+    model = fnsi.model_at_order(dec, d, order)
+    return summarize_coefficients(nonlinear_coefficients(model, d, list(basis),
+                                                         driving_point=driving_point))
+
+
+def _auto(name, kind, channels, **kw):
+    pars = {"trilinear": ("g_neg", "g_pos"), "bilinear": ("clearance",)}[kind]
+    return Nonlinearity(name, kind, channels, unknown=tuple(ParameterSpace(p) for p in pars), **kw)
+
+
+@pytest.fixture(scope="module")
+def chain_stop():
+    model = sim.lumped_model("trilinear")
+    return model, *_simulate(model)
+
+
+# ---------------------------------------------------------------------------- relative stop
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_relative_two_sided_stop_noise_free(chain_stop, sign):
+    """Both gaps 'auto' over the whole recorded excursion: found to the model-error floor;
+    flipping L swaps the sides (same physics)."""
+    model, u, y = chain_stop
+    nl = _auto("stop", "trilinear", {"X2": sign, "X3": -sign})
+    data = _data(model, u, y, [nl])
+    res = estimate_basis_parameters(data, [nl], order=6)
+    gaps = res.basis[0].clearances if sign > 0 else res.basis[0].clearances[::-1]
+    # measured 5e-5 relative (the floor of the band-limited basis evaluation)
+    assert np.allclose(gaps, GAPS, rtol=1e-3)
+    for est in res.estimates:
+        assert 0 < est.std < 1e-3 * est.value       # curvature-based, tiny without noise
+        # the scan starts at 2 % of the excursion (~0.1 mm) and ends at 98 % (~4.5 mm)
+        assert est.unknown.interval[0] < 0.3 * est.value and est.unknown.interval[1] > 8 * est.value
+        assert est.profile_objective.min() == pytest.approx(res.objective, rel=1e-6)
+        assert est.margin > 1e3
+    coefs = _coefficients(data, res.basis, driving_point="X3")
+    truth = CONTACT if sign > 0 else CONTACT[::-1]
+    # known gaps give -0.01 %; within 0.1 % here (the targets: 2 % gaps, 0.5 % coefficients)
+    for c, t in zip(coefs, truth):
+        assert c.mean_real == pytest.approx(t, rel=1e-3)
+
+
+def test_relative_two_sided_stop_noisy():
+    """1 % white noise on every output, 16 periods averaged. The noise in the measured
+    relative motion smooths the kink the basis sees (errors in variables); the estimate is
+    biased towards larger gaps by roughly noise variance / periods (docs/ident.md)."""
+    model = sim.lumped_model("trilinear")
+    u, y = _simulate(model, periods=3)
+    P = 16
+    u, y = np.tile(u[-N:], (P, 1)), np.tile(y[-N:], (P, 1))
+    y = y + np.random.default_rng(0).standard_normal(y.shape) * np.std(y, axis=0) * 0.01
+    nl = _auto("stop", "trilinear", {"X2": 1, "X3": -1})
+    data = _data(model, u, y, [nl], transient=0)
+    res = estimate_basis_parameters(data, [nl], order=6)
+    err = np.array(res.basis[0].clearances) / GAPS - 1
+    # measured +3.0 % / +4.4 % (seed 0); seeds 0-3: +0.7..+7.9 % (7 periods: +7..+12 %,
+    # 31 periods: +1.3..+3.9 % over 3 seeds); the bias does not vanish at 1 % noise
+    assert np.all(np.abs(err) < 0.08)
+    assert np.all(err > 0)                       # the sign of the errors-in-variables bias
+    for est in res.estimates:
+        assert est.std > 1e-4 * est.value        # noise shows in the uncertainty
+
+
+def test_one_side_known_the_other_searched_in_an_interval(chain_stop):
+    model, u, y = chain_stop
+    nl = Nonlinearity("stop", "trilinear", {"X2": 1, "X3": -1}, clearances=(GAPS[0], 0.0),
+                      unknown=(ParameterSpace("g_pos", interval=(3e-4, 8e-4)),))
+    data = _data(model, u, y, [nl])
+    res = estimate_basis_parameters(data, [nl], order=6)
+    (est,) = res.estimates
+    assert est.unknown.interval == (3e-4, 8e-4)
+    assert est.value == pytest.approx(GAPS[1], rel=1e-3)
+    assert res.basis[0].clearances[0] == GAPS[0]         # the given side untouched
+    assert not res.basis[0].unknown
+
+
+# ---------------------------------------------------------------------------- grounded, one-sided
+def _with_element(element):
+    return replace(sim.lumped_model("none"), nonlinearities=(element,))
+
+
+@pytest.mark.parametrize("side", ["pos", "neg"])
+def test_grounded_one_sided_stop(side):
+    """A bilinear stop from X1 to the ground: gap at 60 % of the excursion towards it."""
+    lin = sim.lumped_model("none")
+    _, y_lin = _simulate(lin)
+    reach = float(np.max(y_lin[-N:, 0] if side == "pos" else -y_lin[-N:, 0]))
+    gap = 0.6 * reach
+    el = NonlinearElement("X1-stop", "bilinear", np.array([1.0, 0.0, 0.0]), {side: 3.0e4},
+                          clearances=(gap,))
+    model = _with_element(el)
+    u, y = _simulate(model)
+    nl = Nonlinearity("X1-stop", "bilinear", {"X1": 1.0}, side=side,
+                      unknown=(ParameterSpace("clearance"),))
+    data = _data(model, u, y, [nl])
+    res = estimate_basis_parameters(data, [nl], order=6)
+    (est,) = res.estimates
+    assert est.value == pytest.approx(gap, rel=2e-3)   # measured within 1e-4
+    (c,) = _coefficients(data, res.basis, driving_point="X3")
+    assert c.mean_real == pytest.approx(3.0e4, rel=5e-3)
+
+
+def test_relative_one_sided_stop():
+    el = NonlinearElement("gap", "bilinear", np.array([0.0, 1.0, -1.0]), {"neg": 2.0e4},
+                          clearances=(6e-4,))
+    model = _with_element(el)
+    u, y = _simulate(model)
+    nl = Nonlinearity("gap", "bilinear", {"X2": 1.0, "X3": -1.0}, side="neg",
+                      unknown=(ParameterSpace("clearance", interval=(1e-4, 2e-3)),))
+    res = estimate_basis_parameters(_data(model, u, y, [nl]), [nl], order=6)
+    assert res.basis[0].clearance == pytest.approx(6e-4, rel=2e-3)
+
+
+# ---------------------------------------------------------------------------- exponents
+@pytest.fixture(scope="module")
+def chain_cubic():
+    model = sim.lumped_model("cubic")
+    return model, *_simulate(model)
+
+
+def test_exponent_auto_picks_the_cubic(chain_cubic):
+    model, u, y = chain_cubic
+    nl = Nonlinearity("knl", "polynomial", {"X2": 1, "X3": -1},
+                      unknown=(ParameterSpace("exponent"),))
+    res = estimate_basis_parameters(_data(model, u, y, [nl]), [nl], order=6)
+    (est,) = res.estimates
+    assert est.value == 3.0
+    assert np.isnan(est.std) and est.margin > 1e3      # the runner-up fits far worse
+    assert list(est.profile_values) == [2.0, 3.0, 4.0, 5.0, 6.0, 7.0]
+
+
+def test_signed_exponent_is_continuous(chain_cubic):
+    """|x|^(e-1) x with e free: the cubic spring (odd) is e = 3 exactly."""
+    model, u, y = chain_cubic
+    nl = Nonlinearity("knl", "polynomial", {"X2": 1, "X3": -1}, signed=True,
+                      unknown=(ParameterSpace("exponent", interval=(2.0, 4.5)),))
+    res = estimate_basis_parameters(_data(model, u, y, [nl]), [nl], order=6)
+    assert res.basis[0].exponent == pytest.approx(3.0, abs=5e-3)
+
+
+# ---------------------------------------------------------------------------- refusals
+def test_stop_never_in_contact_is_refused(chain_stop):
+    model, u, y = chain_stop
+    nl = Nonlinearity("stop", "trilinear", {"X2": 1, "X3": -1}, clearances=(GAPS[0], 0.0),
+                      unknown=(ParameterSpace("g_pos", interval=(0.02, 0.05)),))
+    with pytest.raises(NotIdentifiableError, match=r"g_pos.*never in contact"):
+        estimate_basis_parameters(_data(model, u, y, [nl]), [nl], order=6)
+
+
+def test_a_stop_the_structure_does_not_have_is_refused():
+    """Linear chain, a stop searched over the whole excursion: nothing to find."""
+    model = sim.lumped_model("none")
+    u, y = _simulate(model)
+    nl = _auto("stop", "trilinear", {"X2": 1, "X3": -1})
+    with pytest.raises(NotIdentifiableError, match="cannot tell"):
+        estimate_basis_parameters(_data(model, u, y, [nl]), [nl], order=6)
+
+
+def test_true_gap_outside_the_interval_is_refused(chain_stop):
+    model, u, y = chain_stop
+    nl = Nonlinearity("stop", "trilinear", {"X2": 1, "X3": -1}, clearances=(GAPS[0], 0.0),
+                      unknown=(ParameterSpace("g_pos", interval=(6e-4, 9e-4)),))
+    with pytest.raises(NotIdentifiableError, match="edge of the search interval"):
+        estimate_basis_parameters(_data(model, u, y, [nl]), [nl], order=6)
+
+
+def test_unresolved_elements_cannot_be_evaluated():
+    nl = _auto("stop", "trilinear", {"a": 1})
+    with pytest.raises(IdentError, match="not estimated yet"):
+        nl.evaluate(np.zeros(4))
+    assert nl.with_parameters({"g_neg": 1.0, "g_pos": 2.0}).evaluate(np.array([3.0])).tolist() == [[0.0, 1.0]]
+
+
+def test_search_spaces_from_the_motion(chain_stop):
+    model, u, y = chain_stop
+    nl = _auto("stop", "trilinear", {"X2": 1, "X3": -1})
+    (neg, pos) = search_spaces(_data(model, u, y, [nl]), [nl])
+    d = y[-N:, 1] - y[-N:, 2]
+    # reach from the band-limited interpolation: at least the sampled extreme
+    assert pos.reach >= d.max() and pos.reach == pytest.approx(d.max(), rel=0.02)
+    assert neg.reach >= -d.min() and neg.reach == pytest.approx(-d.min(), rel=0.02)
+    assert pos.interval == pytest.approx((0.02 * pos.reach, 0.98 * pos.reach))
+
+
+# ---------------------------------------------------------------------------- configuration
+def _cfg(**nl):
+    base = {"name": "s", "kind": "trilinear", "channels": {"a": 1}}
+    return parse_ident_config({"band_hz": [1, 2], "nonlinearities": [dict(base, **nl)]},
+                              file="x.yaml").nonlinearities[0]
+
+
+def test_config_syntax():
+    assert [s.parameter for s in _cfg(clearances="auto").unknown] == ["g_neg", "g_pos"]
+    nl = _cfg(clearances=[[1.0, 2.0], "auto"])
+    assert nl.unknown[0].interval == (1.0, 2.0) and nl.unknown[1].interval is None
+    nl = _cfg(clearances=[1.5, "auto"])
+    assert nl.clearances[0] == 1.5 and [s.parameter for s in nl.unknown] == ["g_pos"]
+    nl = _cfg(kind="bilinear", clearance=[0.5, 1.0], side="neg")
+    assert nl.unknown[0].interval == (0.5, 1.0)
+    nl = _cfg(kind="polynomial", exponent="auto")
+    assert nl.unknown[0].candidates is None
+    assert _cfg(kind="polynomial", exponent=[2, 3, 5]).unknown[0].candidates == (2.0, 3.0, 5.0)
+    assert not _cfg(clearances=[1.5, 1.3]).unknown
+
+
+@pytest.mark.parametrize("nl, match", [
+    ({"clearances": "sometimes"}, r"clearances: expected 2 numbers"),
+    ({"clearances": [[2.0, 1.0], "auto"]}, r"clearances: search interval \[2.0, 1.0\]"),
+    ({"clearances": [1.0, -1.0]}, r"clearances: expected a non-negative distance"),
+    ({"kind": "polynomial", "exponent": [2, 3.5]}, r"exponent: candidates .* not all whole"),
+    ({"kind": "polynomial", "exponent": [3]}, r"exponent: expected a list of >= 2"),
+])
+def test_config_errors_name_file_field_and_fix(nl, match):
+    with pytest.raises(IdentConfigError, match=match) as err:
+        _cfg(**nl)
+    assert "x.yaml" in str(err.value) and "fix:" in str(err.value)
+
+
+# ---------------------------------------------------------------------------- through the API / CLI
+def _npz(tmp_path, model, u, y):
+    path = tmp_path / "run.npz"
+    np.savez(path, u=u, y=y, fs=FS, N=N, channels=np.array(model.measured_names),
+             input_channels=np.array(model.input_names))
+    return path
+
+
+def test_cli_prints_the_estimates_and_json_holds_them(tmp_path, chain_stop, capsys):
+    import yaml
+    from fnsi_lab.cli import main
+
+    model, u, y = chain_stop
+    cfg = {"band_hz": list(BAND), "transient_periods": 1, "order": 6, "max_order": 12,
+           "inputs": [{"name": model.input_names[0], "driving_point": "X3"}],
+           "nonlinearities": [{"name": "stop", "kind": "trilinear", "channels": {"X2": 1, "X3": -1},
+                               "clearances": "auto", "truth": list(CONTACT)}]}
+    (tmp_path / "c.yaml").write_text(yaml.safe_dump(cfg))
+    out = tmp_path / "r.json"
+    code = main(["ident", str(_npz(tmp_path, model, u, y)), "--config", str(tmp_path / "c.yaml"),
+                 "--json", str(out)])
+    assert code == 0
+    text = capsys.readouterr().out
+    assert "basis parameters from the data (order 6" in text
+    assert "stop g_pos = 0.0005" in text and "model error vs g_pos:" in text
+    res = json.loads(out.read_text())
+    (nl,) = res["nonlinearities"]
+    assert nl["estimated"] == ["g_neg", "g_pos"]
+    assert np.allclose(nl["clearances"], GAPS, rtol=1e-3)
+    assert all(0 < s < 1e-6 for s in nl["clearance_std"])
+    prof = nl["objective"]["g_pos"]
+    assert len(prof["values"]) == len(prof["relative_model_error"]) >= 8
+    assert res["parameter_search"]["order"] == 6
+    assert all(abs(c["error_percent"]) < 0.1 for c in res["coefficients"])
+
+
+def test_refusal_is_one_line_exit_2(tmp_path, capsys):
+    import yaml
+    from fnsi_lab.cli import main
+
+    model = sim.lumped_model("none")
+    u, y = _simulate(model)
+    cfg = {"band_hz": list(BAND), "transient_periods": 1, "order": 6,
+           "inputs": [{"name": model.input_names[0], "driving_point": "X3"}],
+           "nonlinearities": [{"name": "stop", "kind": "trilinear", "channels": {"X2": 1, "X3": -1},
+                               "clearances": [[0.05, 0.1], "auto"]}]}
+    (tmp_path / "c.yaml").write_text(yaml.safe_dump(cfg))
+    code = main(["ident", str(_npz(tmp_path, model, u, y)), "--config", str(tmp_path / "c.yaml")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1
+    assert "'stop'" in err[0] and "g_neg" in err[0] and "never in contact" in err[0]
+
+
+def test_viewer_logs_the_objective(tmp_path):
+    rr = pytest.importorskip("rerun")
+    from fnsi_lab.viewer import paths
+    from fnsi_lab.viewer.log import log_parameter_objective
+
+    path = tmp_path / "p.rrd"
+    rec = rr.RecordingStream("fnsi-lab-test")
+    rec.save(str(path))
+    x = np.linspace(1.0, 2.0, 9)
+    log_parameter_objective(rec, [{"label": "NC2-Z.g_pos", "values": x,
+                                   "objective": (x - 1.3) ** 2 + 1e-8, "estimate": 1.3,
+                                   "std": 1e-4}])
+    rec.flush()
+    from rerun.chunk import RrdReader
+
+    chunks = list(RrdReader(str(path)).stream().collect().stream())
+    ours = [c for c in chunks if str(c.entity_path).startswith(paths.PARAMETERS)]
+    assert ours, "nothing logged under " + paths.PARAMETERS
+    columns = {n for c in ours for n in c.to_record_batch().schema.names}
+    # the physical values travel with the curve (export), not only canvas coordinates
+    assert any("relative_model_error" in n for n in columns)
+
+
+# ---------------------------------------------------------------------------- the SmallSat
+@pytest.mark.slow
+def test_smallsat_39_channels_gaps_auto():
+    """The paper's SmallSat, 39 displacement channels, NC2-Z clearances 'auto' through the
+    one entry point: gaps and contact stiffnesses as with the known gaps."""
+    import fnsi_lab
+    from fnsi_lab.daq.sim.smallsat import DEFAULT_CLEARANCES, NC2Z_CONTACT, smallsat_model
+    from fnsi_lab.ident.config import load_ident_config, packaged_config
+
+    model = smallsat_model()
+    fs, n = 1000.0, 8192
+    u = np.asarray(multisine(n, fs, (5, 50), 100.0, n_periods=6, seed=1).signal[0], float)
+    y = sim.simulate(model, u[:, None], fs, periodic=n, quantities=("displacement",)).displacement
+    src = {"u": u[:, None], "y": y, "fs": fs, "N": n, "channels": list(model.measured_names),
+           "input_channels": ["F-NC2W-Z"]}
+    cfg = load_ident_config(packaged_config("smallsat39"))
+    (nl,) = cfg.nonlinearities
+    auto = replace(cfg, nonlinearities=(replace(nl, clearances=(0.0, 0.0), unknown=(
+        ParameterSpace("g_neg"), ParameterSpace("g_pos"))),))
+    res = fnsi_lab.identify(src, auto).to_json()
+    (got,) = res["nonlinearities"]
+    # measured 1e-5 (gaps) and 0.005 % (coefficients); the targets 2 % and 0.5 %
+    assert np.allclose(got["clearances"], DEFAULT_CLEARANCES["NC2-Z"], rtol=1e-3)
+    truth = {"NC2-Z:neg": NC2Z_CONTACT["neg"], "NC2-Z:pos": NC2Z_CONTACT["pos"]}
+    for c in res["coefficients"]:
+        assert c["mean_real"] == pytest.approx(truth[c["name"]], rel=2e-3)
