@@ -1,8 +1,13 @@
-"""The web viewer renders the fnsi-lab blueprint in headless Chromium.
+"""Every tab of the fnsi-lab blueprint shows its plots in the web viewer (headless Chromium).
 
-Needs the Debian ``chromium`` package (``/usr/bin/chromium``) and the ``playwright`` Python
-package (its driver only; the browser is the system one). Skipped, with the reason, when
-either is missing.
+The time panel stays on ``acq_time`` (what the blueprint selects; Rerun has one global
+timeline). For each tab the test selects it (a new blueprint with ``active_tab``, as a click
+would) and checks the pixels of the tab's plot areas: the series colours of the data must
+cover a real area there, not only a legend entry. Run live (logging into a served stream)
+and from a saved ``.rrd`` (read back and served).
+
+Needs the Debian ``chromium`` package (``/usr/bin/chromium``), ``playwright`` (its driver
+only) and Pillow; skipped, with the reason, when one is missing.
 """
 
 from __future__ import annotations
@@ -23,6 +28,10 @@ from fnsi_lab.viewer.blueprint import blueprint
 CHROMIUM = os.environ.get("FNSI_LAB_CHROMIUM", "/usr/bin/chromium")
 FLAGS = ["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
          "--ignore-gpu-blocklist"]
+GROUPS = ("force", "displacement")
+WIDTH, HEIGHT = 1600, 1000
+#: The views' area in the screenshot: right of the blueprint panel, above the time panel.
+LEFT, TOP, BOTTOM = 220, 70, 840
 
 pytestmark = pytest.mark.slow
 
@@ -47,58 +56,139 @@ def _requirements() -> str | None:
     return None
 
 
-def test_web_viewer_renders_the_blueprint(tmp_path):
-    reason = _requirements()
-    if reason:
-        pytest.skip(reason)
-    from playwright.sync_api import sync_playwright
+# ---------------------------------------------------------------------------- content
+def log_example(rec: rr.RecordingStream) -> None:
+    """A run of a 2-DOF structure with one cubic spring, through the real ``log_*`` functions."""
+    groups = {"force": [0], "displacement": [1, 2]}
+    vlog.log_signal_styles(rec, groups, ["F", "x1", "x2"])
+    t = np.arange(3000) / 1000.0
+    data = np.c_[np.sin(2 * np.pi * 5 * t), 0.5 * np.cos(2 * np.pi * 3 * t),
+                 0.3 * np.sin(2 * np.pi * 7 * t)]
+    vlog.log_signals(rec, data, 0.0, 1000.0, groups)
+    f = np.linspace(2.0, 40.0, 400)
+    s = 2j * np.pi * f
+    modes = ((9.8, 0.02), (25.7, 0.03))
+    h = sum(1.0 / ((2 * np.pi * fn) ** 2 + 2 * z * (2 * np.pi * fn) * s + s ** 2)
+            for fn, z in modes)
+    rng = np.random.default_rng(0)
+    orders = np.arange(2, 31)
+    order, freq, cls = [], [], []
+    for n in orders:
+        for fn, _ in modes[:min(n // 2, 2)]:
+            order.append(n)
+            freq.append(fn * (1 + 1e-4 * rng.standard_normal()))
+            cls.append("stable" if n > 6 else "new")
+    crit = 10.0 ** (-np.minimum(orders, 6) + 0.01 * orders)
+    vlog.log_identification(rec, {
+        "frf": {"frequency_hz": f, "measured": h * (1 + 0.05 * rng.standard_normal(f.size)),
+                "linear": h * 1.6, "model": h * 0.8},
+        "stabilisation": {"order": order, "frequency_hz": freq, "pole_class": cls},
+        "criterion": {"orders": orders, "criterion": crit, "selected_order": 6},
+        "mdi": {"frequency_hz": [9.8, 25.7, 31.0, 35.0], "mdi": [3.0, 1.5, 1e-5, 1e-6],
+                "kept": [True, True, False, False], "threshold": 1e-3},
+        "coefficients": {"frequency_hz": f,
+                         "full": {"k3": 1e9 * (1 + 0.01 * np.sin(f))},
+                         "reduced": {"k3": 1e9 * (1 + 0.003 * np.sin(f))},
+                         "exact": {"k3": 1e9, "k_other": 5.0}},
+        "convergence": {"update": 1, "acq_time_s": 3.0,
+                        "values": {"natural_frequency_hz": [9.8, 25.7]},
+                        "coefficients": {"k3": 1.001e9}},
+        "summary": vlog.summary_markdown("web test", [("selected order", "6")]),
+    }, update=1)
+    vlog.log_status(rec, 3.0, {"updates": 1, "latency_s": 0.4}, "update 1")
 
-    grpc_port, web_port = _free_port(), _free_port()
-    rec = rr.RecordingStream("fnsi-lab-web-test", recording_id="web")
-    bp = blueprint(("force", "displacement"))
-    url = rec.serve_grpc(grpc_port=grpc_port, default_blueprint=bp)
-    rr.serve_web_viewer(web_port=web_port, open_browser=False, connect_to=url)
-    try:
-        groups = {"force": [0], "displacement": [1, 2]}
-        vlog.log_signal_styles(rec, groups, ["F", "x1", "x2"])
-        t = np.arange(2000) / 1000.0
-        data = np.c_[np.sin(2 * np.pi * 5 * t), np.cos(2 * np.pi * 3 * t), 0.5 * t]
-        vlog.log_signals(rec, data, 0.0, 1000.0, groups)
-        vlog.log_summary(rec, vlog.summary_markdown("web test", [("selected order", "4")]))
-        vlog.log_convergence(rec, 1, 2.0, {"natural_frequency_hz": [9.8, 25.7]})
-        rec.flush()
-        with sync_playwright() as pw:
-            browser = pw.chromium.launch(executable_path=CHROMIUM, args=FLAGS, headless=True)
-            page = browser.new_page(viewport={"width": 1280, "height": 800})
-            page.goto(f"http://127.0.0.1:{web_port}/?url={url}", timeout=60_000)
-            page.wait_for_selector("canvas", timeout=60_000)
-            shots = []
-            deadline = time.monotonic() + 60
-            while time.monotonic() < deadline:
-                page.wait_for_timeout(4000)
-                png = page.screenshot()
-                shots.append(png)
-                if _colours(png) > 200:  # the app UI and plots are drawn, not the splash
-                    break
-            browser.close()
-        (tmp_path / "web.png").write_bytes(shots[-1])
-        n_colours = _colours(shots[-1])
-        assert n_colours > 200, f"blank or splash-only screenshot ({n_colours} colours)"
-        assert _std(shots[-1]) > 10
-    finally:
-        rec.disconnect()
+
+#: tab -> [(region name, (x0, y0, x1, y1) as fractions of the views' area, colour, pixels)]:
+#: each region must hold at least ``pixels`` pixels of ``colour`` (legend entries are a few
+#: dozen pixels at most, so the thresholds need the data drawn).
+CHECKS = {
+    0: [("force signal", (0.0, 0.0, 0.55, 0.45), vlog.SIGNAL_PALETTE[0], 1500),
+        ("displacement signals", (0.0, 0.5, 0.55, 1.0), vlog.SIGNAL_PALETTE[1], 1500),
+        # the one update of a run is a visible marker (right of the legend, at the cursor)
+        ("mode 1 after one update", (0.75, 0.0, 1.0, 0.17), vlog.SIGNAL_PALETTE[0], 25)],
+    1: [("stabilisation diagram", (0.0, 0.0, 0.58, 1.0), vlog.POLE_STYLE["stable"][0], 400),
+        ("information criterion", (0.62, 0.0, 1.0, 1.0), (0, 114, 178), 300)],
+    2: [("FRF model", (0.0, 0.0, 0.48, 1.0), vlog.FRF_STYLE["model"][0], 300),
+        ("FRF underlying linear", (0.0, 0.0, 0.48, 1.0), vlog.FRF_STYLE["linear"][0], 400),
+        ("MDI", (0.52, 0.0, 1.0, 0.48), (0, 158, 115), 60),
+        ("coefficients", (0.52, 0.52, 1.0, 1.0), vlog.COEFFICIENT_PALETTE[0], 300)],
+}
 
 
 def _pixels(png: bytes) -> np.ndarray:
     from PIL import Image
 
-    return np.asarray(Image.open(io.BytesIO(png)).convert("RGB"))
+    return np.asarray(Image.open(io.BytesIO(png)).convert("RGB")).astype(np.int16)
 
 
-def _colours(png: bytes) -> int:
-    px = _pixels(png).reshape(-1, 3).astype(np.int64)
-    return int(np.unique(px[:, 0] * 65536 + px[:, 1] * 256 + px[:, 2]).size)
+def colour_count(px: np.ndarray, box: tuple[float, float, float, float],
+                 colour: tuple[int, int, int], tol: int = 45) -> int:
+    """Pixels of ``colour`` (L1 distance <= tol) in a fractional box of the views' area."""
+    h, w = BOTTOM - TOP, px.shape[1] - LEFT
+    x0, y0, x1, y1 = box
+    region = px[TOP + int(y0 * h):TOP + int(y1 * h), LEFT + int(x0 * w):LEFT + int(x1 * w)]
+    return int(np.sum(np.abs(region - np.array(colour)).sum(axis=-1) <= tol))
 
 
-def _std(png: bytes) -> float:
-    return float(_pixels(png).std())
+def _failures(png: bytes, tab: int) -> list[str]:
+    px = _pixels(png)
+    out = []
+    for name, box, colour, need in CHECKS[tab]:
+        got = colour_count(px, box, colour)
+        if got < need:
+            out.append(f"{name}: {got} pixels of {colour} < {need}")
+    return out
+
+
+# ---------------------------------------------------------------------------- test
+def _serve(rec: rr.RecordingStream) -> tuple[str, int]:
+    grpc_port, web_port = _free_port(), _free_port()
+    url = rec.serve_grpc(grpc_port=grpc_port, default_blueprint=blueprint(GROUPS))
+    rr.serve_web_viewer(web_port=web_port, open_browser=False, connect_to=url)
+    return url, web_port
+
+
+@pytest.mark.parametrize("source", ["live", "rrd"])
+def test_every_tab_shows_its_plots_on_the_default_timeline(source, tmp_path):
+    reason = _requirements()
+    if reason:
+        pytest.skip(reason)
+    from playwright.sync_api import sync_playwright
+
+    rec = rr.RecordingStream("fnsi-lab", recording_id=f"web-{source}")
+    if source == "rrd":
+        saved = rr.RecordingStream("fnsi-lab", recording_id="web-rrd")
+        saved.save(str(tmp_path / "run.rrd"), default_blueprint=blueprint(GROUPS))
+        log_example(saved)
+        saved.flush()
+        saved.disconnect()
+        from rerun.chunk import RrdReader
+
+        url, web_port = _serve(rec)
+        rr.send_chunks(RrdReader(str(tmp_path / "run.rrd")).stream().collect(), recording=rec)
+    else:
+        url, web_port = _serve(rec)
+        log_example(rec)
+    rec.flush()
+    try:
+        with sync_playwright() as pw:
+            browser = pw.chromium.launch(executable_path=CHROMIUM, args=FLAGS, headless=True)
+            page = browser.new_page(viewport={"width": WIDTH, "height": HEIGHT})
+            page.goto(f"http://127.0.0.1:{web_port}/?url={url}", timeout=60_000)
+            page.wait_for_selector("canvas", timeout=60_000)
+            problems: dict[int, list[str]] = {}
+            for tab in CHECKS:
+                if tab:  # select the tab; the timeline stays the blueprint's acq_time
+                    rec.send_blueprint(blueprint(GROUPS, active_tab=tab), make_active=True)
+                deadline = time.monotonic() + 120  # a software rasterizer on a busy machine
+                while True:
+                    page.wait_for_timeout(3000)
+                    png = page.screenshot(timeout=120_000)
+                    problems[tab] = _failures(png, tab)
+                    if not problems[tab] or time.monotonic() > deadline:
+                        break
+                (tmp_path / f"tab{tab}.png").write_bytes(png)
+            browser.close()
+    finally:
+        rec.disconnect()
+    assert not any(problems.values()), f"{problems} (screenshots in {tmp_path})"

@@ -163,7 +163,7 @@ def _series_style(rec: rr.RecordingStream, entity: str, name: str,
     # lines AND points: a series of one update (one value) is already visible
     rec.log(entity, rr.SeriesLines(names=[name], colors=[color], widths=[1.5]),
             rr.SeriesPoints(names=[name], colors=[color], markers=["Circle"],
-                            marker_sizes=[3.0]), static=True)
+                            marker_sizes=[5.0]), static=True)
 
 
 # ---------------------------------------------------------------------------- identification
@@ -195,7 +195,7 @@ def log_frf(rec: rr.RecordingStream, frequency_hz: Any, *, measured: Any = None,
             continue
         h = curves[key]
         color, name = FRF_STYLE[key]
-        kind, width = ("points", 1.3) if key == "measured" else ("line", 1.5)
+        kind, width = ("points", 1.0) if key == "measured" else ("line", 1.5)
         values = {"frequency_hz": f, "re": h.real, "im": h.imag}
         mag_panel.series.append(Series(key, name, f, mags[key], color, kind=kind, width=width,
                                        values=values))
@@ -229,7 +229,7 @@ def log_stabilisation(rec: rr.RecordingStream, order: Any, frequency_hz: Any,
     zeta = None if damping_ratio is None else np.asarray(damping_ratio, dtype=float).ravel()
     panel = Panel("", _title("stabilisation diagram: pole frequency (Hz)", update),
                   Axis.fit("model order", order, pad=0.03),
-                  Axis.fit("frequency (Hz)", freq, include=[0.0], pad=0.02))
+                  Axis.fit("frequency (Hz)", freq, include=[0.0], pad=0.05))
     names = list(POLE_STYLE) + sorted(set(cls.tolist()) - set(POLE_STYLE))
     for name in names:
         sel = cls == name
