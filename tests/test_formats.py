@@ -183,6 +183,29 @@ def test_uff_even_increment_with_six_digits_gives_the_round_rate(tmp_path):
     assert rate_from_increment(1 / 3000, path="p", field="f") == 3000.0
 
 
+def test_binary_uff58_import(lab, tmp_path):
+    from fnsi_lab.daq.formats import read_lab_file
+
+    # dataset 58b (binary doubles), as Testlab and other DAQ software write large records
+    x = np.column_stack([lab["u"], lab["y"]])
+    names = lab["names_in"] + lab["names_out"]
+    path = tmp_path / "binary.uff"
+    pyuff.UFF(str(path)).write_sets([pyuff.prepare_58(
+        binary=1, func_type=1, id1=n, rsp_node=j + 1, rsp_dir=-2, ref_node=0, ref_dir=0,
+        data=x[:, j].astype(float), x=np.arange(x.shape[0]) / FS_HZ, abscissa_spacing=1,
+        abscissa_spec_data_type=17, ordinate_spec_data_type=13 if j == 0 else 8,
+        ordinate_axis_units_lab="N" if j == 0 else "m", orddenom_spec_data_type=0,
+        z_axis_spec_data_type=0) for j, n in enumerate(names)], mode="add")
+    # ('add' into a new file: pyuff 2.5's binary writer truncates the file per set on
+    # 'overwrite')
+    table = read_lab_file(path)
+    assert table.names == tuple(names) and table.sample_rate_hz == FS_HZ
+    assert np.array_equal(table.data.astype(np.float32), x)
+    assert [c.quantity for c in table.channels] == ["force"] + ["displacement"] * 3
+    assert {(c.node, c.direction) for c in table.channels[1:]} == {("2", "-Y"), ("3", "-Y"),
+                                                                  ("4", "-Y")}
+
+
 def test_csv_layouts_of_spreadsheet_exports(tmp_path):
     from fnsi_lab.daq.formats import plan_import, read_lab_file
 
