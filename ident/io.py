@@ -10,7 +10,13 @@ MATLAB ``.mat``); this module only validates arrays. The array format
   ``N``   optional samples per period (default: the config's, else one period);
   ``channels``        optional output names (default ``y0, y1, ...``);
   ``input_channels``  optional input names (default ``u0, ...``);
-  ``quantity``        optional output quantity (displacement | velocity | acceleration).
+  ``quantity``        optional output quantity (displacement | velocity | acceleration);
+  ``excited_lines``   optional DFT bins of one period the multisine excites (else detected
+                      from ``u``: :mod:`ident.excitation`);
+  ``realization_starts``, ``transient_samples``  optional: ``u``, ``y`` are one long record
+                      whose realisation ``r`` starts at sample ``realization_starts[r]``;
+                      ``transient_samples`` are dropped after each start, then whole periods
+                      of ``N`` samples (:func:`ident.periodic.cut_realizations`).
 """
 
 from __future__ import annotations
@@ -22,7 +28,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from fnsi_lab.ident.errors import ChannelError, IdentDataError, IdentError
-from fnsi_lab.ident.periodic import OUTPUT_QUANTITIES, as_periodic
+from fnsi_lab.ident.periodic import OUTPUT_QUANTITIES, as_periodic, cut_realizations
 
 
 @dataclass(frozen=True, eq=False)
@@ -121,10 +127,25 @@ def input_from_arrays(arrays: Mapping[str, Any], path: str = "",
         raise IdentDataError(f"{path}: u {u.shape} and y {y.shape} do not have the same number "
                              "of samples (expected u (n_samples, n_inputs), y (n_samples, n_outputs))")
     try:
+        if "realization_starts" in arrays:   # one long record, several realisations
+            if N is None or u.ndim != 2:
+                raise IdentError("realization_starts needs N and 2-D u, y (n_samples, channels)")
+            cut = dict(starts=np.asarray(arrays["realization_starts"]).reshape(-1),
+                       samples_per_period=N,
+                       transient_samples=int(np.asarray(arrays.get("transient_samples", 0))))
+            u, y = cut_realizations(u, **cut), cut_realizations(y, **cut)
         u4 = as_periodic(u, N, "u")
         y4 = as_periodic(y, N, "y")
     except IdentError as exc:
         raise IdentDataError(f"{path}: {exc}") from None
+    exc_lines = None
+    if "excited_lines" in arrays:
+        exc_lines = np.asarray(arrays["excited_lines"]).reshape(-1)
+        if (exc_lines.size == 0 or not np.all(np.mod(exc_lines, 1) == 0)
+                or exc_lines.min() < 1 or exc_lines.max() >= u4.shape[2] / 2):
+            raise IdentDataError(f"{path}: 'excited_lines' must be DFT bins 1 .. N/2-1 of one "
+                                 f"period (N = {u4.shape[2]}), got {exc_lines[:5]}...")
+        exc_lines = exc_lines.astype(int)
     q = arrays.get("quantity")
     q = None if q is None else str(np.asarray(q).squeeze())
     if q is not None and q not in OUTPUT_QUANTITIES:
@@ -134,7 +155,7 @@ def input_from_arrays(arrays: Mapping[str, Any], path: str = "",
                                             "input_channels", path),
                       output_channels=_names(arrays.get("channels"), y4.shape[3], "y",
                                              "channels", path),
-                      output_quantity=q, path=path)
+                      output_quantity=q, path=path, excited_lines=exc_lines)
 
 
 def select_channels(inp: IdentInput, *, outputs: Sequence[str] | None = None,

@@ -817,3 +817,55 @@ def data_report(data: FrequencyData) -> dict:
             "test judges each mode against the model's residual only, which an over-fitting "
             "model makes small; record two or more steady periods, or use an odd multisine.")
     return {"noise": noise, "excitation": data.excitation, "offsets": data.offsets}
+
+
+def cut_realizations(x: np.ndarray, starts: Sequence[int], samples_per_period: int, *,
+                     transient_samples: int = 0, periods: int | None = None) -> np.ndarray:
+    """Cut a long record with several realisations into ``(R, P, N, channels)``.
+
+    Lab multisine tests often record every realisation in one file: realisation ``r``
+    starts at sample ``starts[r]`` (a new phase draw, often after a pause), its first
+    ``transient_samples`` samples are the switch-on transient, then come whole periods.
+
+    Parameters
+    ----------
+    x : ndarray, shape (n_samples, n_channels) or (n_samples,)
+    starts : sequence of int
+        First sample of each realisation (0-based, increasing).
+    samples_per_period : int
+        ``N``.
+    transient_samples : int
+        Samples dropped after each start.
+    periods : int, optional
+        Periods kept per realisation; default as many whole periods as fit before the next
+        start (the same for every realisation: the smallest).
+
+    Returns
+    -------
+    ndarray, shape (R, P, N, n_channels)
+
+    Raises
+    ------
+    IdentError
+        Starts not increasing or outside the record, no whole period after a transient.
+    """
+    arr = np.asarray(x, float)
+    if arr.ndim == 1:
+        arr = arr[:, None]
+    n = arr.shape[0]
+    s = [int(v) for v in np.asarray(starts).reshape(-1)]
+    N = int(samples_per_period)
+    tr = int(transient_samples)
+    if not s or any(b <= a for a, b in zip(s, s[1:])) or s[0] < 0 or s[-1] >= n:
+        raise IdentError(f"realization_starts {s} must be increasing sample indices inside the "
+                         f"record of {n} samples")
+    if tr < 0 or N < 1:
+        raise IdentError("transient_samples must be >= 0 and N >= 1")
+    ends = s[1:] + [n]
+    fit = min((e - (a + tr)) // N for a, e in zip(s, ends))
+    P = fit if periods is None else int(periods)
+    if P < 1 or P > fit:
+        raise IdentError(f"realization_starts/transient_samples leave {fit} whole period(s) of "
+                         f"{N} samples per realisation (asked {P}); fix the starts, "
+                         "transient_samples or N")
+    return np.stack([arr[a + tr:a + tr + P * N].reshape(P, N, arr.shape[1]) for a in s])

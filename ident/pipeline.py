@@ -65,6 +65,8 @@ class IdentSession:
         ``config.nonlinearities`` then hold the estimated values.
     warnings : list of str
         Everything a user should read about the data (steady state, truth mismatch...).
+    evidence : dict
+        Decisions taken from the data on the way (``time_base_choice``), copied to the JSON.
     """
 
     config: IdentConfig
@@ -74,6 +76,7 @@ class IdentSession:
     d_zero: bool
     timings_s: dict = field(default_factory=dict)
     warnings: list = field(default_factory=list)
+    evidence: dict = field(default_factory=dict)
     parameter_search: Any = None
 
 
@@ -415,6 +418,7 @@ class Identification:
         out["frf"] = {k: ({"re": v.real, "im": v.imag} if isinstance(v, np.ndarray)
                           and np.iscomplexobj(v) else v) for k, v in frf.items()}
         out.update(data_report(data))  # noise (source, level per output), excitation, offsets
+        out.update(s.evidence)          # e.g. time_base_choice (ident.time_base)
         out["warnings"] = list(s.warnings)
         out["timings_s"] = {**s.timings_s, **out.get("timings_s", {})}
         return json_safe(out)
@@ -533,10 +537,18 @@ def identify_input(inp: IdentInput, cfg: IdentConfig, *, order: int | None = Non
     if order is not None:
         max_order = max(int(order), max_order or cfg.max_order or int(order))
         t1 = time.perf_counter()
-        dec = subspace_decomposition(session.data, max_order=max_order, block_rows=block_rows,
-                                     weighted=session.weighted)
+        if cfg.time_base == "auto" and session.data.output_quantity == "displacement":
+            # band-limited or bilinear line map: the one that fits (ident.time_base)
+            from fnsi_lab.ident.time_base import choose_time_base
+            session.data, dec, model, choice = choose_time_base(
+                session.data, int(order), max_order=max_order, block_rows=block_rows,
+                weighted=session.weighted, d_zero=session.d_zero)
+            session.evidence["time_base_choice"] = choice
+        else:
+            dec = subspace_decomposition(session.data, max_order=max_order,
+                                         block_rows=block_rows, weighted=session.weighted)
+            model = model_at_order(dec, session.data, int(order), d_zero=session.d_zero)
         session.timings_s["decomposition"] = time.perf_counter() - t1
-        model = model_at_order(dec, session.data, int(order), d_zero=session.d_zero)
         session.timings_s["model"] = time.perf_counter() - t1 - session.timings_s["decomposition"]
         ident = Identification(session, model, "order", decomposition=dec)
     else:
