@@ -141,6 +141,15 @@ def test_imported_recording_works_with_info(imported, capsys):
     assert "source import" in text and f"N = {N}" in text and "1 transient" in text
 
 
+def test_imported_recording_replays(imported, tmp_path):
+    # the live identification service reads it like an acquisition (period and transient
+    # periods from the import's excitation record)
+    rrd = tmp_path / "replay.rrd"
+    assert main(["replay", str(imported["csv"]), "--method", "frf", "--rrd", str(rrd),
+                 "--quiet"]) == 0
+    assert rrd.stat().st_size > 0
+
+
 @pytest.mark.parametrize("kind", ["tdms", "uff", "csv"])
 def test_identification_identical_to_npz(identified, kind):
     ref, got = identified["npz"], identified[kind]
