@@ -254,15 +254,15 @@ def _inverse_covariance(data: FrequencyData, weighted: bool) -> np.ndarray | Non
     cache = data.__dict__.setdefault("_ident_cache", {})
     if "inv_cov" in cache:
         return cache["inv_cov"]
-    var = np.real(np.einsum("kii->ki", cov))
+    var = np.real(cov if cov.ndim == 2 else np.einsum("kii->ki", cov))  # (F, p) variances only
     mean_var = float(np.mean(var))
     if not mean_var > 0:
         q = None
     else:
         floor = 1e-8 * mean_var
         p = cov.shape[1]
-        off = cov - np.einsum("ki,ij->kij", np.einsum("kii->ki", cov), np.eye(p))
-        if data.n_periods - 1 < _FULL_COV_PERIODS_PER_OUTPUT * p or not np.any(off):
+        if (cov.ndim == 2 or data.n_periods - 1 < _FULL_COV_PERIODS_PER_OUTPUT * p
+                or not np.any(cov - np.einsum("ki,ij->kij", np.einsum("kii->ki", cov), np.eye(p)))):
             # per-channel variances, smoothed over neighbouring lines: from P periods each
             # line's estimate has only P - 1 degrees of freedom and its inverse would weight
             # the lines at random (the noise spectrum itself is smooth)
@@ -852,8 +852,9 @@ def _estimate_bd(a_d, c_d, data, *, d_zero, weighted, modal):
         if ok and Q is not None and Q.ndim == 2:
             X = (base.conj()[:, :, None] * base[:, None, :]).reshape(p, nq * nq)
             Xr, Xi = np.ascontiguousarray(X.real), np.ascontiguousarray(X.imag)
-        for k0 in range(0, F, _CHUNK):
-            k1 = min(k0 + _CHUNK, F)
+        chunk = max(1, min(_CHUNK, 2 ** 26 // (16 * nq * nq)))  # (chunk, nq, nq) <= 64 MB
+        for k0 in range(0, F, chunk):
+            k1 = min(k0 + chunk, F)
             c = k1 - k0
             if ok and Q.ndim == 2:  # diagonal: M_k = sum_r q_kr conj(base_r) base_r^T
                 Mk = (Q[k0:k1] @ Xr + 1j * (Q[k0:k1] @ Xi)).reshape(c, nq, nq)

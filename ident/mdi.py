@@ -370,7 +370,8 @@ def output_weights(Y, scaling: str = "rms", noise_cov=None):
     if scaling == "none":
         return np.ones(Y.shape[1])
     if scaling == "noise" and noise_cov is not None:
-        v = np.real(np.einsum("kii->ki", np.asarray(noise_cov))).mean(axis=0)
+        cov = np.asarray(noise_cov)  # (F, p, p), or (F, p) variances (many channels)
+        v = np.real(cov if cov.ndim == 2 else np.einsum("kii->ki", cov)).mean(axis=0)
         return 1.0 / np.sqrt(np.where(v > 0, v, np.inf))
     r = np.sqrt(np.mean(np.abs(Y) ** 2, axis=0))
     return 1.0 / np.where(r > 0, r, np.inf)

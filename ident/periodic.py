@@ -23,6 +23,9 @@ from fnsi_lab.ident.noise import mains_contaminated_lines, noise_from_nonexcited
 
 OutputQuantity = Literal["displacement", "velocity", "acceleration"]
 OUTPUT_QUANTITIES: tuple[str, ...] = ("displacement", "velocity", "acceleration")
+#: Above this size the noise covariance keeps only its diagonal when ``P - 1 < 2 p`` (then
+#: the weighting uses the variances anyway, ident.fnsi._inverse_covariance).
+_FULL_COV_MAX_BYTES = 256 * 2 ** 20
 
 
 @dataclass(frozen=True, eq=False)
@@ -70,8 +73,11 @@ class FrequencyData:
     input_scale : ndarray, shape (m_e,)
         ``sigma``: 1 for the forces, ``sigma_a = rms(p)/rms(h_a)`` for basis columns, so the
         physical spectrum is ``E / input_scale``.
-    noise_cov : complex ndarray, shape (F, p, p) or None
-        Covariance of ``Y`` (of the average) per line; None when ``P < 2``.
+    noise_cov : complex ndarray, shape (F, p, p), real ndarray, shape (F, p), or None
+        Covariance of ``Y`` (of the average) per line; None when ``P < 2``. Only the
+        variances ``(F, p)`` when the full matrices would exceed ``_FULL_COV_MAX_BYTES`` and
+        the periods are too few for the weighting to invert them (``P - 1 < 2 p``): 312
+        channels would otherwise hold 3 GB.
     n_inputs : int
         Number of forces ``m``.
     sample_rate_hz : float
@@ -588,10 +594,14 @@ def prepare_frequency_data(record: Any = None, *, u: Any = None, y: Any = None,
     if P >= 2 and noise_estimate in ("auto", "periods"):
         Yq = np.fft.rfft(Y4, axis=2)[:, :, K] / N  # (R, P, F0, p)
         dev = Yq - Yf[:, None]
-        noise = np.einsum("rqki,rqkj->rkij", dev, dev.conj()) / (P * (P - 1))
-        noise = noise.reshape(-1, p, p)
+        if P - 1 < 2 * p and R * K.size * p * p * 16 > _FULL_COV_MAX_BYTES:
+            noise = (np.sum(np.abs(dev) ** 2, axis=1) / (P * (P - 1))).reshape(-1, p)
+        else:
+            noise = np.einsum("rqki,rqkj->rkij", dev, dev.conj()) / (P * (P - 1))
+            noise = noise.reshape(-1, p, p)
         noise_source = "periods"
-    noise_var = None if noise is None else np.real(np.einsum("kii->ki", noise))
+    noise_var = (None if noise is None else noise if noise.ndim == 2
+                 else np.real(np.einsum("kii->ki", noise)))
     if noise is None and noise_estimate in ("auto", "lines"):
         bins = noise_lines(grid.lines, grid.step, grid.offset, N // 2 + 1, fs, N)
         if bins.size:
