@@ -1,0 +1,137 @@
+"""Basis parameters from the data: accuracy and cost of ``clearances: auto``.
+
+Cases (simulated with daq.sim, truth known):
+
+- the 39-channel SmallSat (NC2-Z stop, noise-free), packaged config ``smallsat39``, robust
+  pipeline (orders 2..60): clearances given vs ``auto``, wall time of the whole run;
+- the 3-DOF chain with a relative two-sided stop (``lumped-stop``), noise-free and with 1 %
+  white output noise (16 periods averaged, 4 noise seeds), clearances ``auto``, against the
+  same identification with the clearances given.
+
+Timing ratios are measured within one run (auto and known interleaved, best of ``--repeat``);
+absolute times depend on the machine's load.
+
+    python bench/bench_parameter_search.py [--repeat 2] [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import time
+from dataclasses import replace
+
+import numpy as np
+
+from fnsi_lab.blas import limit_blas_threads
+
+limit_blas_threads(1)
+
+import fnsi_lab  # noqa: E402
+from fnsi_lab.daq.multisine import multisine  # noqa: E402
+from fnsi_lab.daq.sim import lumped_model, simulate  # noqa: E402
+from fnsi_lab.daq.sim.smallsat import DEFAULT_CLEARANCES, NC2Z_CONTACT, smallsat_model  # noqa: E402
+from fnsi_lab.ident.basis import ParameterSpace  # noqa: E402
+from fnsi_lab.ident.config import load_ident_config, packaged_config  # noqa: E402
+
+
+def with_auto_clearances(cfg):
+    """The same configuration with every stop's clearances left to the data."""
+    nls = tuple(replace(nl, unknown=(ParameterSpace("g_neg"), ParameterSpace("g_pos")))
+                if nl.kind == "trilinear" else nl for nl in cfg.nonlinearities)
+    return replace(cfg, nonlinearities=nls)
+
+
+def run(src, cfg, **kw):
+    t0 = time.perf_counter()
+    res = fnsi_lab.identify(src, cfg, **kw).to_json()
+    return time.perf_counter() - t0, res
+
+
+def errors(res, gaps, contact):
+    nl = res["nonlinearities"][0]
+    g_err = [100 * (g / t - 1) for g, t in zip(nl["clearances"], gaps)]
+    c_err = [100 * (c["mean_real"] / t - 1) for c, t in zip(res["coefficients"], contact)]
+    return g_err, c_err, nl.get("clearance_std")
+
+
+def smallsat(repeat: int) -> None:
+    model = smallsat_model()
+    fs, n = 1000.0, 8192
+    u = np.asarray(multisine(n, fs, (5, 50), 100.0, n_periods=6, seed=1).signal[0], float)
+    y = simulate(model, u[:, None], fs, periodic=n, quantities=("displacement",)).displacement
+    src = {"u": u[:, None], "y": y, "fs": fs, "N": n, "channels": list(model.measured_names),
+           "input_channels": ["F-NC2W-Z"]}
+    known = load_ident_config(packaged_config("smallsat39"))
+    auto = with_auto_clearances(known)
+    gaps = DEFAULT_CLEARANCES["NC2-Z"]
+    contact = (NC2Z_CONTACT["neg"], NC2Z_CONTACT["pos"])
+    t = {"known": [], "auto": []}
+    out = {}
+    for _ in range(repeat):
+        for name, cfg in (("known", known), ("auto", auto)):
+            dt, res = run(src, cfg)
+            t[name].append(dt)
+            out[name] = res
+    gk, ck, _ = errors(out["known"], gaps, contact)
+    ga, ca, sa = errors(out["auto"], gaps, contact)
+    ps = out["auto"]["parameter_search"]
+    print("SmallSat, 39 channels, noise-free, robust pipeline (orders 2..60):")
+    print(f"  known clearances: {min(t['known']):.2f} s; coefficient errors "
+          f"{ck[0]:+.4f} % / {ck[1]:+.4f} %")
+    print(f"  clearances auto:  {min(t['auto']):.2f} s (search {ps['timings_s']['total']:.2f} s, "
+          f"{ps['n_evaluations']} fits at order {ps['order']}, i = {ps['block_rows']}); "
+          f"ratio {min(t['auto']) / min(t['known']):.2f}x")
+    print(f"  gaps {out['auto']['nonlinearities'][0]['clearances']} (truth {list(gaps)}): "
+          f"errors {ga[0]:+.4f} % / {ga[1]:+.4f} %, std {sa[0]:.2g} / {sa[1]:.2g} mm; "
+          f"coefficient errors {ca[0]:+.4f} % / {ca[1]:+.4f} %")
+
+
+def chain(noise: float, seeds: range, periods: int, repeat: int) -> None:
+    model = lumped_model("trilinear")
+    fs, n = 1024.0, 8192
+    u = np.asarray(multisine(n, fs, (5, 60), 20.0, n_periods=3, seed=1).signal).reshape(-1, 1)
+    y0 = simulate(model, u, fs, periodic=n).displacement
+    u, y0 = np.tile(u[-n:], (periods, 1)), np.tile(y0[-n:], (periods, 1))
+    known = load_ident_config(packaged_config("lumped-stop"))
+    known = replace(known, transient_periods=0)
+    auto = with_auto_clearances(known)
+    gaps, contact = (4e-4, 5e-4), (2.0e4, 1.5e4)
+    label = "noise-free" if noise == 0 else f"{100 * noise:g} % noise, {periods} periods"
+    print(f"3-DOF chain, relative two-sided stop, {label}, order 6:")
+    for seed in seeds:
+        y = y0 + (np.random.default_rng(seed).standard_normal(y0.shape) * np.std(y0, axis=0)
+                  * noise)
+        src = {"u": u, "y": y, "fs": fs, "N": n, "channels": list(model.measured_names),
+               "input_channels": list(model.input_names)}
+        tk, ta = [], []
+        for _ in range(repeat):
+            dt, rk = run(src, known, order=6)
+            tk.append(dt)
+            dt, ra = run(src, auto, order=6)
+            ta.append(dt)
+        _, ck, _ = errors(rk, gaps, contact)
+        ga, ca, sa = errors(ra, gaps, contact)
+        print(f"  seed {seed}: gaps {ga[0]:+.3f} % / {ga[1]:+.3f} % (std "
+              f"{100 * sa[0] / gaps[0]:.2g} / {100 * sa[1] / gaps[1]:.2g} %); coefficients auto "
+              f"{ca[0]:+.3f} / {ca[1]:+.3f} %, known {ck[0]:+.3f} / {ck[1]:+.3f} %; time "
+              f"{min(ta):.2f} s vs {min(tk):.2f} s ({min(ta) / min(tk):.1f}x)")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeat", type=int, default=2)
+    ap.add_argument("--quick", action="store_true", help="one noise seed")
+    args = ap.parse_args()
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    print(f"date: {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; "
+          f"{os.cpu_count()} cores, one BLAS thread, load average {load:.1f}; "
+          f"python {platform.python_version()}, numpy {np.__version__}")
+    smallsat(args.repeat)
+    chain(0.0, range(1), 3, args.repeat)
+    chain(0.01, range(1 if args.quick else 4), 16, 1)
+
+
+if __name__ == "__main__":
+    main()
