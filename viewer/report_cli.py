@@ -15,7 +15,7 @@ from fnsi_lab.errors import ConfigError, DataFileError
 
 
 def load_report_input(source: str | Path, *, config: str | None = None, orders: str | None = None,
-                      recording: str | None = None,
+                      recording: str | None = None, harmonics: float = 1.0,
                       progress: bool = False) -> tuple[dict, dict | None]:
     """The identification JSON and the recording metadata behind a report.
 
@@ -30,6 +30,9 @@ def load_report_input(source: str | Path, *, config: str | None = None, orders: 
     recording : path, optional
         Recording whose metadata the report shows (default: the JSON's ``input`` when it is
         an existing ``.mcap``, or ``source`` itself).
+    harmonics : float
+        With a recording and no config: process the lines up to ``harmonics`` times the
+        highest excited frequency (``fnsi-lab run`` uses 5; 1: the excited band).
     progress : bool
         Progress bar over the order sweep.
 
@@ -63,7 +66,7 @@ def load_report_input(source: str | Path, *, config: str | None = None, orders: 
         if recording is None and inp.lower().endswith(".mcap") and Path(inp).is_file():
             recording = inp
     elif suffix == ".mcap":
-        result = _identify_recording(src, config, orders, progress).to_json()
+        result = _identify_recording(src, config, orders, harmonics, progress).to_json()
         recording = recording or str(src)
     else:
         raise DataFileError(f"{src}: unsupported file type {suffix!r}; give a result .json or "
@@ -78,7 +81,7 @@ def load_report_input(source: str | Path, *, config: str | None = None, orders: 
 
 
 def _identify_recording(path: Path, config: str | None, orders: str | None,
-                        progress: bool) -> Any:
+                        harmonics: float, progress: bool) -> Any:
     """The robust pipeline on a recording; without a config, the same default as ``live``
     and ``run`` (excited band, the truth's basis, the driving point from the channel table)."""
     import fnsi_lab
@@ -94,8 +97,8 @@ def _identify_recording(path: Path, config: str | None, orders: str | None,
         outs, ins = rec.output_channels, rec.input_channels
         dp = outs[driving_point(outs, ins)].name if outs and ins else None
     inp = load_input(path)
-    return fnsi_lab.identify(inp, default_config(inp, driving_point=dp), orders=orders,
-                             progress=progress)
+    cfg = default_config(inp, harmonics=harmonics, driving_point=dp)
+    return fnsi_lab.identify(inp, cfg, orders=orders, progress=progress)
 
 
 def write_report(path: str | Path, result: dict, metadata: dict | None = None, *,
@@ -133,7 +136,8 @@ def _cmd_report(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else src.with_suffix(".html")
     check_output_path(out, force=args.force)  # before a long identification
     result, metadata = load_report_input(src, config=args.config, orders=args.orders,
-                                         recording=args.recording, progress=not args.quiet)
+                                         recording=args.recording, harmonics=args.harmonics,
+                                         progress=not args.quiet)
     write_report(out, result, metadata, force=args.force, title=args.title, output=args.output)
     print(f"report written to {out} (one file, opens offline in any browser)")
     return 0
@@ -164,6 +168,10 @@ def register(subparsers: Any) -> None:
                         "excited band and, for simulations, its truth's basis functions)")
     p.add_argument("--orders", metavar="FIRST:LAST",
                    help="with a recording: order sweep (default the config's, else 2:60)")
+    p.add_argument("--harmonics", type=float, default=1.0, metavar="K",
+                   help="with a recording and no config: process the lines up to K times the "
+                        "highest excited frequency (5 as `fnsi-lab run`; default 1: the "
+                        "excited band)")
     p.add_argument("--recording", metavar="REC.mcap",
                    help="with a JSON: recording whose metadata to show (default: the JSON's "
                         "input when it is a recording)")
