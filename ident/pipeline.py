@@ -95,7 +95,7 @@ def apply_recording_truth(cfg: IdentConfig, truth: Mapping | None) -> tuple[Iden
     nls = []
     for nl in cfg.nonlinearities:
         t = by_name.get(nl.name)
-        if t is None or nl.unknown:  # parameters left to the data are never taken from a truth
+        if t is None:
             nls.append(nl)
             continue
         coefs = t.get("coefficients", {})
@@ -106,7 +106,8 @@ def apply_recording_truth(cfg: IdentConfig, truth: Mapping | None) -> tuple[Iden
             nl = replace(nl, truth=tuple(float(coefs[k]) for k in keys))
         given = [float(x) for x in t.get("clearances", [])]
         mine = {"trilinear": list(nl.clearances), "bilinear": [nl.clearance]}.get(nl.kind)
-        if (mine is not None and given and all(isinstance(m, (int, float)) for m in mine)
+        if (mine is not None and given and not nl.unknown   # 'auto': estimated, compared later
+                and all(isinstance(m, (int, float)) for m in mine)
                 and not np.allclose(mine, given, rtol=1e-9, atol=0)):
             notes.append(f"nonlinearity {nl.name!r}: clearances {mine} differ from the "
                          f"recording's truth {given}")

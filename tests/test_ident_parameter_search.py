@@ -368,3 +368,36 @@ def test_smallsat_39_channels_gaps_auto():
     truth = {"NC2-Z:neg": NC2Z_CONTACT["neg"], "NC2-Z:pos": NC2Z_CONTACT["pos"]}
     for c in res["coefficients"]:
         assert c["mean_real"] == pytest.approx(truth[c["name"]], rel=2e-3)
+
+
+def test_simulated_recording_truth_is_compared_never_used(tmp_path):
+    """A real MCAP recording of the chain with its stop: 'auto' gaps are estimated from the
+    data; the recording's truth only fills the coefficients' exact values and the gaps'
+    error, and raises no 'clearances differ' warning."""
+    import yaml
+    import fnsi_lab
+
+    exp = yaml.safe_load((__import__("pathlib").Path(fnsi_lab.daq.__file__).parent / "data"
+                          / "lumped.yaml").read_text())
+    exp["source"]["options"]["lumped"] = {"variant": "trilinear"}
+    exp["excitation"].update(band_hz=[5, 60], rms=20.0, samples_per_period=8192,
+                             realizations=1, periods=3, transient_periods=1)
+    exp["sample_rate_hz"] = 1024
+    (tmp_path / "exp.yaml").write_text(yaml.safe_dump(exp))
+    rec = tmp_path / "stop.mcap"
+    fnsi_lab.acquire(str(tmp_path / "exp.yaml"), rec)
+    truth = fnsi_lab.open_recording(rec).truth
+    (el,) = truth["nonlinearities"]
+    cfg = {"band_hz": list(BAND), "order": 6, "max_order": 12,
+           "inputs": [{"name": "F-X3", "driving_point": "X3"}],
+           "nonlinearities": [{"name": el["name"], "kind": "trilinear",
+                               "channels": {"X2": 1, "X3": -1}, "clearances": "auto"}]}
+    res = fnsi_lab.identify(str(rec), cfg, order=6).to_json()
+    (nl,) = res["nonlinearities"]
+    assert nl["estimated"] == ["g_neg", "g_pos"]
+    assert not any("differ" in w for w in res["warnings"])
+    # measured -0.003 % / +0.00003 % (gaps), -0.002 % / -0.001 % (coefficients)
+    assert all(abs(e) < 0.2 for e in nl["clearance_error_percent"])
+    assert np.allclose(nl["clearances"], el["clearances"], rtol=2e-3)
+    assert all(c["error_percent"] is not None and abs(c["error_percent"]) < 0.5
+               for c in res["coefficients"])
