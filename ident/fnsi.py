@@ -773,6 +773,74 @@ def project_outputs(data: FrequencyData, basis: np.ndarray, *, d_zero: bool = Fa
     return reduced, d_perp, np.sum(np.abs(Yp) ** 2, axis=1)
 
 
+def _estimate_bd_diag_weighted(a_d, c_d, data, Q, modal, refine: int = 2):
+    """Weighted B, D with per-line, per-channel weights ``Q`` (F, p), D eliminated per channel.
+
+    Same least squares as :func:`_estimate_bd` (its oracle in the tests), but ``D``'s
+    ``p m_e`` unknowns enter through a Schur complement: with a diagonal weight every channel's
+    ``D_i`` couples only to ``B``, so ``N_DD`` is block diagonal (``p`` blocks of
+    ``m_e x m_e``) and the system is ``m_e n`` wide whatever ``p``. The cost is
+    ``O(F p n^2)`` (the per-line ``C_hat^H Q_k C_hat``) instead of ``O(F p (n + p)^2)``.
+    """
+    n = a_d.shape[0]
+    p, me = data.n_outputs, data.n_extended_inputs
+    mu, phi, _ = modal
+    E, Y, F = data.E, data.Y, data.n_lines
+    pinv = np.linalg.inv(phi)
+    ch = c_d @ phi                                                   # (p, n)
+    w = 1.0 / (data.z[:, None] - mu[None, :])                        # (F, n)
+    EE = (E.conj()[:, :, None] * E[:, None, :]).reshape(F, me * me)  # (F, (j,l))
+    X = (ch.conj()[:, :, None] * ch[:, None, :]).reshape(p, n * n)
+    Nbb = np.zeros((me * me, n * n), complex)
+    chunk = max(1, min(_CHUNK, 2 ** 26 // (16 * n * n)))
+    for k0 in range(0, F, chunk):
+        k1 = min(k0 + chunk, F)
+        Mk = Q[k0:k1] @ X.real + 1j * (Q[k0:k1] @ X.imag)           # C_hat^H Q_k C_hat
+        G = Mk * (w[k0:k1].conj()[:, :, None] * w[k0:k1, None, :]).reshape(k1 - k0, n * n)
+        Nbb += EE[k0:k1].T @ G
+    Nbb = Nbb.reshape(me, me, n, n).transpose(0, 2, 1, 3)            # (j, a, l, b)
+    Nbb = np.einsum("ia,jalb,bk->jilk", pinv.conj().T, Nbb, pinv, optimize=True)
+    Nbb = Nbb.reshape(me * n, me * n).real
+    # N_BD[(j,a),(l,i)] = sum_k conj(E_kj) E_kl conj(w_ka) q_ki conj(C_hat_ia)
+    V = (EE.reshape(F, me, me)[:, :, None, :] * w.conj()[:, None, :, None]).reshape(F, -1)
+    Nbd = (V.T @ Q).reshape(me, n, me, p) * ch.conj().T[None, :, None, :]
+    Nbd = np.einsum("ia,jalm->jilm", pinv.conj().T, Nbd, optimize=True)
+    Nbd = Nbd.transpose(0, 1, 3, 2).reshape(me * n, p * me).real     # columns (i, l)
+    Ndd = (Q.T @ EE).reshape(p, me, me).real                         # per-channel blocks
+    Ndd = 0.5 * (Ndd + np.swapaxes(Ndd, 1, 2))
+    Ndd_inv = np.linalg.inv(Ndd + 1e-300)                            # (p, me, me)
+
+    def dd_solve(r):  # N_DD^{-1} r for r (..., p me)
+        return np.einsum("iab,...ib->...ia", Ndd_inv, r.reshape(r.shape[:-1] + (p, me))
+                         ).reshape(r.shape)
+
+    Schur = Nbb - Nbd @ dd_solve(Nbd).T
+    solve_s = _normal_solver(0.5 * (Schur + Schur.T))
+
+    def rhs(R):
+        QR_ = Q * R
+        rb = (E.conj().T @ ((QR_ @ ch.conj()) * w.conj()))           # (me, n) modal
+        rb = (rb @ pinv.conj()).reshape(-1).real
+        rd = (QR_.T @ E.conj()).real.reshape(-1)                     # (i, l)
+        return rb, rd
+
+    def solve(rb, rd):
+        tb = solve_s(rb - Nbd @ dd_solve(rd))
+        return tb, dd_solve(rd - Nbd.T @ tb)
+
+    def predict(tb, td):
+        B = tb.reshape(me, n).T
+        return ((E @ B.T @ pinv.T) * w) @ ch.T + E @ td.reshape(p, me).T
+
+    tb, td = solve(*rhs(Y))
+    for _ in range(refine):  # iterative refinement, residual in the original form
+        db, dd = solve(*rhs(Y - predict(tb, td)))
+        tb, td = tb + db, td + dd
+    b_d = tb.reshape(me, n).T * data.input_scale[None, :]
+    d_d = td.reshape(p, me) * data.input_scale[None, :]
+    return b_d, d_d
+
+
 def _estimate_bd(a_d, c_d, data, *, d_zero, weighted, modal):
     """:func:`estimate_bd` with a precomputed ``(mu, Phi, ok)`` of ``a_d``."""
     n = a_d.shape[0]
@@ -786,6 +854,9 @@ def _estimate_bd(a_d, c_d, data, *, d_zero, weighted, modal):
         b_d, d_r = _estimate_bd(a_d, W.T @ c_d, reduced, d_zero=d_zero, weighted=False,
                                 modal=modal)
         return b_d, W @ d_r + d_perp
+    if (Q is not None and Q.ndim == 2 and modal[2] and not d_zero
+            and p > n + _OUTPUT_RANK_MARGIN):
+        return _estimate_bd_diag_weighted(a_d, c_d, data, Q, modal)
     if Q is None and modal[2]:
         from fnsi_lab.ident.fast_bd import fast_estimate_bd, line_sums
         if line_sums(data) is not None:  # stacked realisations: per-line sums, same answer

@@ -154,3 +154,23 @@ def test_stacked_realisations_are_summed_per_line_with_the_same_answer():
     # the QR over every stacked line finds the poles as well
     dec_qr = fnsi.subspace_decomposition(data, max_order=20, method="qr")
     assert np.max(pole_errors(fnsi.model_at_order(dec_qr, data, 12), lam)) < 1e-4
+
+
+def test_weighted_bd_with_many_channels_eliminates_d_per_channel(monkeypatch):
+    """Per-channel noise weights: D eliminated by its block-diagonal Schur complement gives
+    the same B, D as the full weighted normal equations (every D unknown in them)."""
+    from dataclasses import replace
+    data, _ = dense_array(40, snr_db=40.0)
+    rng = np.random.default_rng(3)
+    var = np.abs(rng.standard_normal((data.n_lines, 40))) * 1e-6 + 1e-7  # uneven channels
+    data = replace(data, noise_cov=var, n_periods=4)
+    dec = fnsi.subspace_decomposition(data, max_order=10, weighted=False)
+    a, c = fnsi.state_matrices(dec, 8)
+    b1, d1 = fnsi.estimate_bd(a, c, data, weighted=True)          # 40 > 8 + 8: eliminated
+    monkeypatch.setattr(fnsi, "_OUTPUT_RANK_MARGIN", 10 ** 6)     # force the full system
+    b2, d2 = fnsi.estimate_bd(a, c, data, weighted=True)
+    assert np.abs(b1 - b2).max() < 1e-9 * np.abs(b2).max()
+    assert np.abs(d1 - d2).max() < 1e-9 * np.abs(d2).max()
+    # and the weights mattered: the unweighted answer is elsewhere
+    b3, _ = fnsi.estimate_bd(a, c, data, weighted=False)
+    assert np.abs(b3 - b2).max() > 1e-6 * np.abs(b2).max()
