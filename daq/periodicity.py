@@ -31,6 +31,10 @@ import numpy as np
 MAX_LINE_OFFSET_BINS = 0.005
 #: ... and only when the offset is this many standard errors away from zero.
 MIN_SIGNIFICANCE = 5.0
+#: Below this phase coherence of the fit (weighted mean resultant length of the residual
+#: phases: 1 = every line turns as fitted, ~0 = random phases) the data carry no usable
+#: period-to-period phase (noise only, or not periodic) and the check is not measurable.
+MIN_COHERENCE = 0.5
 
 
 @dataclass(frozen=True)
@@ -53,7 +57,10 @@ class ClockCheck:
     warning : bool
         True when the mismatch matters for identification (and is significant).
     n_periods : int
-        Consecutive period pairs used, summed over realizations, plus one per realization.
+        Periods used, summed over realizations.
+    coherence : float
+        Weighted mean resultant length of the residual line phases (1: every line turns
+        exactly as fitted); below :data:`MIN_COHERENCE` the offset is not reported.
     """
 
     offset_ppm: float
@@ -62,12 +69,14 @@ class ClockCheck:
     limit_ppm: float
     warning: bool
     n_periods: int
+    coherence: float = float("nan")
 
     @property
     def message(self) -> str:
         """One line for status displays and ``fnsi-lab info``."""
         if not np.isfinite(self.offset_ppm):
-            return "clock check: not measurable (needs 2 steady periods and excited lines)"
+            return ("clock check: not measurable (needs 2 periods, excited lines and a "
+                    "coherent phase turn)")
         text = (f"clock check: drive vs acquisition {self.offset_ppm:+.2f} ± "
                 f"{self.uncertainty_ppm:.2f} ppm (highest line off by "
                 f"{self.line_offset_bins:.4f} bins; limit {self.limit_ppm:.1f} ppm)")
@@ -77,10 +86,13 @@ class ClockCheck:
         return text
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-able form (NaN stays NaN; the JSON encoder maps it to null)."""
-        return {"offset_ppm": self.offset_ppm, "uncertainty_ppm": self.uncertainty_ppm,
+        """JSON-able form (not measurable: null offsets)."""
+        from fnsi_lab.outputs import json_safe
+
+        return json_safe({"offset_ppm": self.offset_ppm, "uncertainty_ppm": self.uncertainty_ppm,
                 "line_offset_bins": self.line_offset_bins, "limit_ppm": self.limit_ppm,
-                "warning": self.warning, "n_periods": self.n_periods, "message": self.message}
+                "warning": self.warning, "n_periods": self.n_periods,
+                "coherence": self.coherence, "message": self.message})
 
 
 def _line_cross_spectra(x: np.ndarray, lines: np.ndarray) -> np.ndarray:
@@ -159,12 +171,17 @@ def check_clock(periods: np.ndarray, excited_lines: Sequence[int], *,
     resid = np.angle(np.exp(1j * (theta + 2 * np.pi * k * e0)))
     de, se = _fit_slope(resid, k, w)
     e = e0 + de
+    final = np.angle(np.exp(1j * (theta + 2 * np.pi * k * e)))
+    coherence = float(np.abs(np.sum(w * np.exp(1j * final))) / np.sum(w))
+    if coherence < MIN_COHERENCE:  # phases do not follow any turn: noise, or not periodic
+        return ClockCheck(np.nan, np.nan, np.nan, np.nan, False, n_used, coherence)
     k_max = float(k[-1])
     line_offset = k_max * abs(e)
     limit_ppm = max_line_offset_bins / k_max * 1e6
     warning = bool(line_offset > max_line_offset_bins and abs(e) > MIN_SIGNIFICANCE * se)
     return ClockCheck(offset_ppm=e * 1e6, uncertainty_ppm=se * 1e6, line_offset_bins=line_offset,
-                      limit_ppm=limit_ppm, warning=warning, n_periods=n_used)
+                      limit_ppm=limit_ppm, warning=warning, n_periods=n_used,
+                      coherence=coherence)
 
 
 def check_record_clock(record: Any) -> ClockCheck:

@@ -113,3 +113,13 @@ def test_live_service_status_reports_the_clock(runs, smallsat) -> None:
     assert svc.status.clock is not None and svc.status.clock.warning
     assert svc.status.clock.offset_ppm == pytest.approx(50.0, rel=0.01)
     assert "clock +50.0 ppm WARNING" in svc.status.line()
+
+
+def test_noise_only_never_warns_and_one_period_is_not_measurable() -> None:
+    lines = np.arange(20, 200)
+    for seed in range(20):  # no periodic content: whatever the fit says is not significant
+        x = np.random.default_rng(seed).standard_normal((2, 4, 1024, 3))
+        assert not check_clock(x, lines).warning
+    one = check_clock(np.ones((1, 1024, 3)), lines)
+    assert np.isnan(one.offset_ppm) and not one.warning
+    assert one.to_dict()["offset_ppm"] is None  # strict JSON
