@@ -152,6 +152,7 @@ def design_drive(excitation: ExcitationConfig, sample_rate_hz: float, *,
     if volts_per_newton is not None and not (np.isfinite(volts_per_newton) and volts_per_newton > 0):
         raise ConfigError(f"volts per newton must be a positive number, got {volts_per_newton}",
                           field="--volts-per-newton", fix="give the amplifier's volts per newton, e.g. 0.01")
+    excitation = replace(excitation, drive=None)  # a drive-based experiment re-exports plainly
     if periods is not None:
         if periods < 1:
             raise ConfigError(f"periods must be >= 1, got {periods}", field="--periods")
