@@ -111,17 +111,14 @@ class DriveDefinition:
             "file": dict(self.file),
         }
 
-    def recording_metadata(self, source_file: str | None = None) -> dict[str, Any]:
+    def recording_metadata(self) -> dict[str, Any]:
         """The ``excitation`` metadata of a recording driven by this drive.
 
         Carries what :func:`daq.recording.reader.read_periodic` reads (``samples_per_period``,
         ``excited_lines``, ``transient_periods``) plus the whole definition under ``drive``.
         """
-        meta = {**self.excitation.to_dict(), "excited_lines": [int(k) for k in self.excited_lines],
+        return {**self.excitation.to_dict(), "excited_lines": [int(k) for k in self.excited_lines],
                 "sample_rate_hz": self.sample_rate_hz, "drive": self.to_dict()}
-        if source_file is not None:
-            meta["drive_file"] = str(source_file)
-        return meta
 
 
 # ---------------------------------------------------------------------------- design

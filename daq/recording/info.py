@@ -148,7 +148,7 @@ def format_info(info: dict[str, Any]) -> str:
                      + (f", seed {exc['seed']}" if "seed" in exc else ""))
         drive = exc.get("drive")
         if drive:
-            lines.append(f"drive: {exc.get('drive_file') or drive.get('file', {}).get('name', '?')}, "
+            lines.append(f"drive: {drive.get('file', {}).get('name', '?')}, "
                          f"{len(drive.get('excited_lines', []))} lines, unit "
                          f"{drive.get('scaling', {}).get('unit')}, sha256 "
                          f"{str(drive.get('signal_sha256'))[:12]}...")
