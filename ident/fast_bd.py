@@ -10,7 +10,6 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg as sla
 
-from fnsi_lab.ident import order_selection as osel
 from fnsi_lab.ident.errors import IdentError
 
 __all__ = ["fast_estimate_bd", "model_at_order_fast", "model_output", "model_error",
@@ -64,7 +63,7 @@ def fast_estimate_bd(a_d, c_d, data, *, d_zero: bool = False, refine: int = 2):
     G = ch.conj().T @ ch                                         # (n, n)
     sums = line_sums(data)
     if sums is None:  # every line once: the products over the lines themselves
-        E, Y, z = data.E, data.Y, data.z
+        E, z = data.E, data.z
         F = z.size
         w = 1.0 / (z[:, None] - mu[None, :])                    # (F, n)
         U = (E[:, :, None] * w[:, None, :]).reshape(F, me * n)  # (F, (j,a))
