@@ -278,8 +278,9 @@ def test_campaign_command_compares_levels_into_rrd_and_json(recordings, tmp_path
     out = tmp_path / "c.parquet"
     assert _batch(root, out, "--scheduler", "serial", "--results", str(tmp_path / "res")) == 1
     capsys.readouterr()
-    rrd, js = tmp_path / "campaign.rrd", tmp_path / "comparison.json"
-    assert main(["campaign", str(out), "--rrd", str(rrd), "--json", str(js)]) == 0
+    rrd, js, page = tmp_path / "campaign.rrd", tmp_path / "comparison.json", tmp_path / "c.html"
+    assert main(["campaign", str(out), "--rrd", str(rrd), "--json", str(js),
+                 "--html", str(page)]) == 0
     text = capsys.readouterr().out
     assert "force level(s) (5, 10)" in text and "identification failed" in text
     comparison = json.loads(js.read_text())
@@ -300,5 +301,8 @@ def test_campaign_command_compares_levels_into_rrd_and_json(recordings, tmp_path
                  "/campaign/frequencies/frequency/mode_3/mean", "/campaign/summary"):
         assert name in entities
     assert sum(e.startswith("/campaign/frf/F-X3/run_") for e in entities) == 2
+    text = page.read_text()
+    assert text.count("<svg") == 3 and "identification failed" in text
+    assert "stop-corrupted.mcap" in text and "stop-rms10.mcap" in text
     # outputs are not overwritten without --force
     assert main(["campaign", str(out), "--rrd", str(rrd)]) == 2

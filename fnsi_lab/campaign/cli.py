@@ -24,6 +24,7 @@ docs/campaigns.md explains the table and the cluster set-ups.
 CAMPAIGN_EXAMPLES = """\
 examples:
   fnsi-lab campaign campaign.parquet --rrd campaign.rrd && rerun campaign.rrd
+  fnsi-lab campaign campaign.parquet --html campaign.html
   fnsi-lab campaign campaign.parquet --json comparison.json --output NC2W-Z
 """
 
@@ -79,7 +80,7 @@ def _campaign(args: argparse.Namespace) -> int:
     from fnsi_lab.campaign.table import read_table
     from fnsi_lab.outputs import check_output_path, write_json
 
-    for target, option in ((args.rrd, "--rrd"), (args.json, "--json")):
+    for target, option in ((args.rrd, "--rrd"), (args.json, "--json"), (args.html, "--html")):
         if target not in (None, "-"):
             check_output_path(target, force=args.force, option=option)
     rows, settings = read_table(args.table)
@@ -95,6 +96,15 @@ def _campaign(args: argparse.Namespace) -> int:
 
         save_campaign_rrd(comparison, args.rrd, summary=f"```\n{text}\n```")
         print(f"wrote {args.rrd} (open with: rerun {args.rrd})")
+    if args.html:
+        from fnsi_lab.campaign.report import render_campaign_report
+        from fnsi_lab.outputs import atomic_output
+
+        page = render_campaign_report(comparison, rows,
+                                      title=f"fnsi-lab campaign: {Path(args.table).stem}")
+        with atomic_output(args.html) as fh:
+            fh.write(page)
+        print(f"wrote {args.html}")
     write_json(comparison.to_json(), args.json, force=True)
     return 0
 
@@ -163,6 +173,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         epilog=CAMPAIGN_EXAMPLES)
     p.add_argument("table", metavar="CAMPAIGN.parquet")
     p.add_argument("--rrd", metavar="FILE.rrd", help="Rerun recording of the comparison")
+    p.add_argument("--html", metavar="FILE.html",
+                   help="the comparison as one offline HTML page (figures inline, as "
+                        "'fnsi-lab report')")
     p.add_argument("--json", metavar="OUT.json", help="the comparison as JSON ('-' for stdout)")
     p.add_argument("--output", metavar="CHANNEL",
                    help="output channel of the FRF overlay (default: the driving point)")
