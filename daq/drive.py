@@ -159,8 +159,7 @@ def design_drive(excitation: ExcitationConfig, sample_rate_hz: float, *,
     scale = 1.0 if volts_per_newton is None else float(volts_per_newton)
     signal = ms.signal * scale if scale != 1.0 else ms.signal
     n_lines = ms.excited_lines.size
-    # irfft of unit lines scaled to the RMS: every line is a cosine of amplitude rms*sqrt(2/K)
-    amplitude = excitation.rms * scale * np.sqrt(2.0 / n_lines)
+    amplitude = ms.line_amplitude * scale
     definition = DriveDefinition(
         excitation=excitation, sample_rate_hz=float(sample_rate_hz),
         excited_lines=ms.excited_lines.copy(), amplitudes=np.full(n_lines, amplitude),

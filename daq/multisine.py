@@ -53,6 +53,39 @@ class Multisine:
         """One period of one realization, shape (samples_per_period,)."""
         return self.signal[realization, : self.samples_per_period]
 
+    @property
+    def line_amplitude(self) -> float:
+        """Cosine amplitude of every excited line: ``rms * sqrt(2 / n_excited)``."""
+        return self.rms * float(np.sqrt(2.0 / self.excited_lines.size))
+
+    def at(self, positions: np.ndarray, realization: int = 0, chunk: int = 4096) -> np.ndarray:
+        """Evaluate the multisine between its samples.
+
+        Parameters
+        ----------
+        positions : ndarray, shape (n,)
+            Fractional sample indices (``t * sample_rate_hz``).
+        realization : int
+        chunk : int
+            Positions evaluated at once (memory: ``chunk * n_excited`` values).
+
+        Returns
+        -------
+        ndarray, shape (n,)
+            ``sum_k a cos(2 pi k t / N + phi_k)``; equals :attr:`signal` at integer
+            positions (to rounding).
+        """
+        n = self.samples_per_period
+        lines = self.excited_lines.astype(np.float64)
+        phase = self.phases_rad[realization]
+        pos = np.asarray(positions, dtype=np.float64)
+        out = np.empty(pos.size)
+        for start in range(0, pos.size, chunk):
+            t = np.mod(pos[start:start + chunk], n)  # small cosine arguments stay accurate
+            out[start:start + chunk] = self.line_amplitude * np.cos(
+                2 * np.pi * np.outer(t, lines) / n + phase).sum(axis=1)
+        return out
+
 
 def excited_lines(samples_per_period: int, sample_rate_hz: float,
                   band_hz: tuple[float, float]) -> np.ndarray:

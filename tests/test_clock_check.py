@@ -16,7 +16,7 @@ from fnsi_lab.daq.periodicity import MAX_LINE_OFFSET_BINS, check_clock
 from fnsi_lab.daq.recording.info import format_info, recording_info
 from fnsi_lab.daq.recording.writer import Recorder
 from fnsi_lab.daq.registry import make_source
-from fnsi_lab.daq.sim.clock import multisine_at, simulate_clock_mismatch
+from fnsi_lab.daq.sim.clock import simulate_clock_mismatch
 from fnsi_lab.daq.sources.array_source import ArraySource
 
 
@@ -42,10 +42,14 @@ def check(x: np.ndarray, smallsat):
     return check_clock(x, smallsat.multisine.excited_lines, transient_periods=x.shape[1] - 2)
 
 
-def test_multisine_at_integer_positions_is_the_signal(smallsat) -> None:
+def test_multisine_between_samples_equals_the_signal_on_them(smallsat) -> None:
     ms = smallsat.multisine
-    got = multisine_at(ms, np.arange(3 * ms.samples_per_period, dtype=float))
+    got = ms.at(np.arange(3 * ms.samples_per_period, dtype=float))
     np.testing.assert_allclose(got, ms.signal[0, :got.size], atol=1e-12 * ms.rms)
+    # between the samples: the band-limited interpolant (spectrum zero-padded to 2N points)
+    n = ms.samples_per_period
+    half = np.fft.irfft(np.fft.rfft(ms.period()), n=2 * n) * 2
+    np.testing.assert_allclose(ms.at(np.arange(2 * n) / 2.0), half, atol=1e-11 * ms.rms)
 
 
 @pytest.mark.parametrize("ppm", [20.0, 50.0, 200.0, -50.0])

@@ -2,52 +2,20 @@
 
 The generator plays the multisine at ``fs_drive``; the DAQ samples force and responses at
 ``fs_acq = fs_drive (1 + e)``. The force the structure feels, read at acquisition sample n,
-is the multisine evaluated at drive position ``n / (1 + e)`` (exact: a sum of cosines on the
-excited lines); the structure is integrated from rest on the acquisition grid. Used to
-measure how much mismatch the identification tolerates and to test :mod:`daq.periodicity`.
+is the multisine evaluated at drive position ``n / (1 + e)`` (:meth:`Multisine.at`, exact:
+a sum of cosines on the excited lines); the structure is integrated from rest on the
+acquisition grid. Used to measure how much mismatch the identification tolerates and to
+test :mod:`daq.periodicity`.
 """
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
-from fnsi_lab.daq.multisine import Multisine
 
-
-def multisine_at(ms: Multisine, positions: np.ndarray, realization: int = 0,
-                 chunk: int = 4096) -> np.ndarray:
-    """Evaluate a multisine between its samples.
-
-    Parameters
-    ----------
-    ms : Multisine
-    positions : ndarray, shape (n,)
-        Fractional sample indices of the drive (``t * fs_drive``).
-    realization : int
-    chunk : int
-        Positions evaluated at once (memory: ``chunk * n_lines`` values).
-
-    Returns
-    -------
-    ndarray, shape (n,)
-        ``sum_k a cos(2 pi k t / N + phi_k)``; equals ``ms.signal[realization]`` at integer
-        positions (to rounding).
-    """
-    n = ms.samples_per_period
-    lines = ms.excited_lines.astype(np.float64)
-    amplitude = ms.rms * np.sqrt(2.0 / lines.size)
-    phase = ms.phases_rad[realization]
-    pos = np.asarray(positions, dtype=np.float64)
-    out = np.empty(pos.size)
-    for start in range(0, pos.size, chunk):
-        # reduce modulo N first: keeps the cosine arguments small (accurate)
-        t = np.mod(pos[start:start + chunk], n)
-        out[start:start + chunk] = amplitude * np.cos(
-            2 * np.pi * np.outer(t, lines) / n + phase).sum(axis=1)
-    return out
-
-
-def simulate_clock_mismatch(source, offset_ppm: float) -> np.ndarray:
+def simulate_clock_mismatch(source: Any, offset_ppm: float) -> np.ndarray:
     """Channels of every realization of a simulated experiment with a clock mismatch.
 
     Parameters
@@ -76,7 +44,7 @@ def simulate_clock_mismatch(source, offset_ppm: float) -> np.ndarray:
     out = np.empty((ms.n_realizations, ms.n_periods, n, len(source.channels)))
     for r in range(ms.n_realizations):
         force = np.zeros((n_total, model.n_inputs))
-        force[:, 0] = multisine_at(ms, positions, r)
+        force[:, 0] = ms.at(positions, r)
         res = simulate(model, force, source.sample_rate_hz, oversample=source.options.oversample,
                        periodic=None, dofs=dofs, quantities=quantities,
                        passband=source.options.passband)
