@@ -114,9 +114,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     if handler is None:
         parser.print_help()
         return 0
-    if getattr(args, "no_crc_check", False):
-        from fnsi_lab.daq.recording.reader import set_default_crc_check
-        set_default_crc_check(False)
+    crc_check = None
+    if getattr(args, "no_crc_check", False):  # for this command only (main may run in-process)
+        from fnsi_lab.daq.recording import reader as crc_check
+        crc_check.set_default_crc_check(False)
     previous = None
     if threading_main():
         previous = signal.signal(signal.SIGTERM, _terminate)
@@ -137,6 +138,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
+        if crc_check is not None:
+            crc_check.set_default_crc_check(True)
 
 
 def threading_main() -> bool:
