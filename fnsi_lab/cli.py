@@ -41,7 +41,7 @@ COMMAND_INDEX = {
 }
 
 #: Commands that read recordings: they get ``--no-crc-check``.
-READS_RECORDINGS = ("info", "ident", "replay")
+READS_RECORDINGS = ("info", "ident", "replay", "report", "export", "batch")
 
 EPILOG = """\
 examples:
@@ -82,7 +82,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
         if register is not None:
             register(sub)
     for name in READS_RECORDINGS:
-        if name in sub.choices:
+        if name in sub.choices and "--no-crc-check" not in sub.choices[name]._option_string_actions:
             sub.choices[name].add_argument(
                 "--no-crc-check", action="store_true",
                 help="do not check the recording's CRCs (faster; a damaged chunk is then "
