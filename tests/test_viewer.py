@@ -189,7 +189,7 @@ def test_view_command_lists_entities_and_prints_the_summary(rec_path, capsys):
     assert main(["view", str(path.parent / "nope.rrd")]) == 2
 
 
-@pytest.mark.parametrize("command", ["view", "replay", "live"])
+@pytest.mark.parametrize("command", ["view", "replay", "live", "report"])
 def test_every_help_has_an_example(command, capsys):
     with pytest.raises(SystemExit) as exc:
         main([command, "--help"])
