@@ -448,3 +448,17 @@ def test_selected_order_at_the_end_of_the_sweep_is_flagged(tmp_path, capsys):
                  "--json", str(out), "--force", "--quiet"]) == 0
     result = json.loads(out.read_text())
     assert result["order"] < 12 and not any("last of the sweep" in w for w in result["warnings"])
+
+
+def test_recover_survives_a_damaged_header_record(multi_chunk, tmp_path):
+    """The MCAP header's length field itself destroyed: the chunks after it are still found."""
+    path, blocks = multi_chunk
+    data = bytearray(path.read_bytes())
+    (opcode, start, end), *_ = _records(bytes(data))
+    assert opcode == Opcode.HEADER
+    data[start + 1:start + 9] = b"\xff" * 8  # its record length
+    path.write_bytes(bytes(data))
+    report = recover(path, tmp_path / "out.mcap")
+    got = [d for _, _, d in _blocks(tmp_path / "out.mcap")]
+    assert got == [b.data.tobytes() for b in blocks]  # every chunk after it, bit for bit
+    assert report.damaged and report.damaged[0][0] == start

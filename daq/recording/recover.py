@@ -453,8 +453,9 @@ def _copy(src: Path, data: Any, out_stream: IO[bytes], out_name: str,
         if problem is None:
             pos = good_end = end
             continue
-        if not header_seen:
-            raise RecordingError(f"{src}: no readable MCAP header; nothing to recover")
+        if not header_seen:  # a damaged header: the data after it may still be intact
+            writer.start(profile=topics.PROFILE, library=f"{topics.LIBRARY_PREFIX} (recovered)")
+            header_seen = True
         # Skip exactly this record when its framing is intact, else scan for a valid chunk.
         nxt = _framing_ok(data, pos, size)
         if nxt is None or opcode != Opcode.CHUNK and opcode not in _DATA_OPCODES:
