@@ -762,8 +762,10 @@ def auto_view(update: ServiceUpdate) -> dict[str, Any]:
             {"label": e.unknown.label, "values": e.profile_values,
              "objective": e.profile_objective, "estimate": e.value, "std": e.std}
             for e in search.estimates]}
-    kept_model = res.reduced if res.reduced is not None else res.model
-    modes = kept_model.poles.modes()
+    # the physical modes of the answer: one per-update series each ("mode 3 (28.3 Hz)")
+    physical = ai.identification.modes
+    modes = {"frequency_hz": np.array([m["frequency_hz"] for m in physical]),
+             "damping_ratio": np.array([m["damping_ratio"] for m in physical])}
     with np.errstate(divide="ignore", invalid="ignore"):
         log_sep = np.log10(res.separation_ratio) if res.separation_ratio > 0 else np.nan
     view["convergence"] = {"update": update.update, "acq_time_s": update.acq_time_s,
