@@ -140,7 +140,6 @@ class LiveRun:
         names = [c.name for c in channels]
         self.groups = vlog.channel_groups(names, [c.quantity for c in channels])
         vlog.log_signal_styles(rec, self.groups, names)
-        vlog.log_styles(rec)
         self.service: Any = None
         self.batch_s = batch_s
         self._buf: list[tuple[float, Any]] = []

@@ -154,10 +154,6 @@ def log_signals(rec: rr.RecordingStream, data: np.ndarray, t0_s: float, sample_r
 
 
 # ---------------------------------------------------------------------------- styles
-def log_styles(rec: rr.RecordingStream, **_: Any) -> None:
-    """Kept for callers of the former API: figures carry their own styles (no-op)."""
-
-
 def _series_style(rec: rr.RecordingStream, entity: str, name: str,
                   color: tuple[int, int, int]) -> None:
     # lines AND points: a series of one update (one value) is already visible
