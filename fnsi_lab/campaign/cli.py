@@ -7,6 +7,7 @@ import sys
 import time
 from pathlib import Path
 
+from fnsi_lab.errors import ConfigError
 from fnsi_lab.progress import Progress
 
 BATCH_EXAMPLES = """\
@@ -35,6 +36,8 @@ def _batch(args: argparse.Namespace) -> int:
     from fnsi_lab.campaign.table import is_campaign_table, read_table, write_table
     from fnsi_lab.outputs import check_output_path
 
+    if args.workers is not None and args.workers < 1:
+        raise ConfigError(f"{args.workers} workers", field="--workers", fix="give N >= 1")
     out = Path(args.out)
     # a campaign table is this command's own state (rewritten on resume); anything else
     # under that name is the user's and needs --force
