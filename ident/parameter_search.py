@@ -128,6 +128,10 @@ class ParameterEstimate:
         ``(V_other - V_best) / s^2`` in chi-square units (``s^2`` the residual variance per
         degree of freedom at the estimate): ``V_other`` is the runner-up candidate (discrete)
         or the better end of the coarse scan (continuous).
+    motion_noise_std : float or None
+        Clearances: standard deviation of the noise left in the averaged ``L^T q`` per
+        sample (from the period-to-period spread), which biases the gap upwards by about as
+        much (docs/ident.md); None without a noise estimate.
     """
 
     unknown: Unknown
@@ -136,6 +140,7 @@ class ParameterEstimate:
     profile_values: np.ndarray
     profile_objective: np.ndarray
     margin: float = float("nan")
+    motion_noise_std: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able record."""
@@ -143,7 +148,7 @@ class ParameterEstimate:
         return {"name": u.name, "parameter": u.parameter, "value": self.value, "std": self.std,
                 "interval": None if u.interval is None else list(u.interval),
                 "candidates": None if u.candidates is None else list(u.candidates),
-                "reach": u.reach, "margin": self.margin,
+                "reach": u.reach, "margin": self.margin, "motion_noise_std": self.motion_noise_std,
                 "profile": {"values": self.profile_values, "objective": self.profile_objective}}
 
 
@@ -165,6 +170,8 @@ class ParameterSearchResult:
     block_rows : int
         ``i`` of the search's decompositions.
     timings_s : dict
+    warnings : list of str
+        What the engineer must read about the estimates (noise in the motion).
     """
 
     basis: tuple[Nonlinearity, ...]
@@ -174,6 +181,7 @@ class ParameterSearchResult:
     n_evaluations: int
     block_rows: int = 0
     timings_s: dict = field(default_factory=dict)
+    warnings: list = field(default_factory=list)
 
     def for_element(self, name: str) -> list[ParameterEstimate]:
         """Estimates of the element ``name``."""
@@ -183,7 +191,8 @@ class ParameterSearchResult:
         """JSON-able summary (profiles included)."""
         return {"order": self.order, "objective": self.objective,
                 "n_evaluations": self.n_evaluations, "block_rows": self.block_rows,
-                "estimates": [e.to_dict() for e in self.estimates], "timings_s": self.timings_s}
+                "estimates": [e.to_dict() for e in self.estimates], "timings_s": self.timings_s,
+                "warnings": list(self.warnings)}
 
 
 # ---------------------------------------------------------------------------- search spaces
@@ -432,11 +441,27 @@ def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity]
                       else float("inf"))
         srt = np.argsort(pv)
         est = ParameterEstimate(u, float(values[k]), float(std[k]) if u.continuous else float("nan"),
-                                np.asarray(pv, float)[srt], np.asarray(po, float)[srt], margin)
+                                np.asarray(pv, float)[srt], np.asarray(po, float)[srt], margin,
+                                _motion_noise_std(data, basis[u.element]) if u.reach else None)
         _refuse_if_unclear(est, basis[u.element], max_relative_std, min_margin)
         estimates.append(est)
+    notes = [f"nonlinearity {e.unknown.name!r}: {e.unknown.parameter} = {e.value:.4g} was "
+             f"estimated from a relative motion with noise {e.motion_noise_std:.3g} "
+             f"({100 * e.motion_noise_std / e.value:.2g} % of it) per sample; noise in the motion "
+             "biases gaps upwards by about as much (docs/ident.md, 'Unknown basis "
+             "parameters'): average more periods"
+             for e in estimates if e.motion_noise_std and e.motion_noise_std > 5e-3 * e.value]
     return ParameterSearchResult(_resolve(basis, unknowns, values), estimates, v_best, order,
-                                 n_eval[0], i_search, {"total": time.perf_counter() - t0})
+                                 n_eval[0], i_search, {"total": time.perf_counter() - t0}, notes)
+
+
+def _motion_noise_std(data: FrequencyData, nl: Nonlinearity) -> float | None:
+    """Per-sample noise std of the averaged ``L^T q`` of an element (None if unknown)."""
+    cov = data.motion.noise_cov if data.motion is not None else None
+    if cov is None:
+        return None
+    L = nl.location_vector(data.motion.channels)
+    return float(np.sqrt(max(L @ cov @ L, 0.0)))
 
 
 def _initial(u: Unknown) -> float:

@@ -45,6 +45,9 @@ class BasisMotion:
         DFT bins of the processed band (per realization).
     force_rms : float
         RMS of the averaged forces (N): basis columns are scaled to it.
+    noise_cov : ndarray, shape (c, c) or None
+        Per-sample covariance of the noise left in the averaged displacement (from the
+        period-to-period spread; displacement outputs with ``P >= 2`` only).
     """
 
     displacement: np.ndarray
@@ -52,6 +55,7 @@ class BasisMotion:
     channels: tuple[str, ...]
     lines: np.ndarray
     force_rms: float
+    noise_cov: np.ndarray | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -580,10 +584,15 @@ def prepare_frequency_data(record: Any = None, *, u: Any = None, y: Any = None,
             # only the channels the basis functions read, on the band-limited interpolation
             q_list.append(interpolate_periodic(q[:, used], basis_oversample))
             qd_list.append(None if qd is None else interpolate_periodic(qd[:, used], basis_oversample))
+        motion_noise = None
+        if output_quantity == "displacement" and P >= 2:
+            # per-sample noise covariance of the period average, from the period-to-period spread
+            res = (Y4 - y_avg[:, None])[..., used]                  # (R, P, N, c)
+            motion_noise = np.einsum("rpni,rpnj->ij", res, res) / (R * N * (P - 1) * P)
         motion = BasisMotion(displacement=np.stack(q_list),
                              velocity=None if not need_v else np.stack(qd_list),
                              channels=tuple(output_names[i] for i in used), lines=K,
-                             force_rms=rms_p)
+                             force_rms=rms_p, noise_cov=motion_noise)
     Uf = np.fft.rfft(u_avg, axis=1)[:, K] / N  # (R, F0, m)
     Yf = np.fft.rfft(y_avg, axis=1)[:, K] / N  # (R, F0, p)
     excited = np.tile(np.isin(K, grid.lines), R)

@@ -264,7 +264,8 @@ def prepare_session(inp: IdentInput, cfg: IdentConfig, *, search_order: int | No
                         d_zero=cfg.d_zero_for(quantity), parameter_search=search,
                         timings_s=timings,
                         warnings=list(inp.notes) + truth_notes
-                        + [str(w.message) for w in caught])
+                        + [str(w.message) for w in caught]
+                        + (list(search.warnings) if search is not None else []))
 
 
 def _driving_points(session: IdentSession) -> Any:
@@ -469,7 +470,8 @@ def _nonlinearity_json(nl: Nonlinearity, search: Any = None, truth: Mapping | No
     if est:
         out["objective"] = {p: {"values": e.profile_values, "relative_model_error":
                                 e.profile_objective, "std": e.std, "margin": e.margin,
-                                "interval": e.unknown.interval, "candidates": e.unknown.candidates}
+                                "interval": e.unknown.interval, "candidates": e.unknown.candidates,
+                                "motion_noise_std": e.motion_noise_std}
                             for p, e in est.items()}
     given = {t.get("name"): t for t in (truth or {}).get("nonlinearities") or []
              if isinstance(t, dict)}.get(nl.name)

@@ -83,6 +83,8 @@ def test_relative_two_sided_stop_noise_free(chain_stop, sign):
         assert est.unknown.interval[0] < 0.3 * est.value and est.unknown.interval[1] > 8 * est.value
         assert est.profile_objective.min() == pytest.approx(res.objective, rel=1e-6)
         assert est.margin > 1e3
+        assert est.motion_noise_std < 1e-6 * est.value   # noise-free periods: no warning
+    assert not res.warnings
     coefs = _coefficients(data, res.basis, driving_point="X3")
     truth = CONTACT if sign > 0 else CONTACT[::-1]
     # known gaps give -0.01 %; within 0.1 % here (the targets: 2 % gaps, 0.5 % coefficients)
@@ -107,6 +109,10 @@ def test_relative_two_sided_stop_noisy():
     # 31 periods: +1.3..+3.9 % over 3 seeds); the bias does not vanish at 1 % noise
     assert np.all(np.abs(err) < 0.08)
     assert np.all(err > 0)                       # the sign of the errors-in-variables bias
+    noise_rel = np.array([e.motion_noise_std / e.value for e in res.estimates])
+    # the motion's noise is 4-5 % of the gaps; the bias is of that size (the warning's claim)
+    assert np.all((noise_rel > 0.02) & (noise_rel < 0.1)) and np.all(err < 2 * noise_rel)
+    assert len(res.warnings) == 2 and all("average more periods" in w for w in res.warnings)
     for est in res.estimates:
         assert est.std > 1e-4 * est.value        # noise shows in the uncertainty
 
