@@ -17,7 +17,9 @@ grid (every line, odd lines, or every ``s``-th line from an offset) filling a ba
    ``grid_fraction`` of the candidates (odd multisines: step 2, offset 1); candidates off
    the grid are not excitation;
 3. runs: candidates on the grid form runs (gaps of at most two grid steps); runs shorter
-   than ``min_run`` lines are not a band (hum landing on the grid outside the band);
+   than ``min_run`` lines are not a band (hum landing on the grid outside the band), nor
+   are runs shorter than ``4 min_run`` whose peak sits at a mains harmonic and stands
+   ``mains_ratio`` above their median (the leakage skirt of strong hum);
 4. mains: a candidate within ``mains_zone`` lines of a multiple of 50 or 60 Hz whose power
    departs from its run's median by more than ``mains_ratio`` is hum (leakage at a band
    edge, or hum on top of a design line).
@@ -158,11 +160,25 @@ def detect_excited_lines(drive_power: np.ndarray, sample_rate_hz: float,
     run_size = np.bincount(run_id)
     keep = run_size[run_id] >= min_run
     isolated, cand, run_id = cand[~keep], cand[keep], run_id[keep]
+    df = float(sample_rate_hz) / N
+    # a short run peaked at a mains harmonic is the hum's own leakage skirt, not a band
+    hum_run = np.zeros(cand.size, bool)
+    for rid in np.unique(run_id):
+        sel = run_id == rid
+        run = cand[sel]
+        if run.size >= 4 * min_run:
+            continue
+        k_pk = run[int(np.argmax(pw[run]))]
+        at_mains = any(h >= 1 and abs(k_pk * df - h * f_m) <= mains_zone * df
+                       for f_m in mains_hz for h in (round(k_pk * df / f_m),))
+        if at_mains and pw[k_pk] > mains_ratio * float(np.median(pw[run])):
+            hum_run[sel] = True
     # mains harmonics inside a run: hum leaks onto the lines next to it; a line there whose
     # power departs from its run's level by more than ``mains_ratio`` is hum, not design
-    df = float(sample_rate_hz) / N
-    keep = np.ones(cand.size, bool)
+    keep = ~hum_run
     for i, k in enumerate(cand):
+        if hum_run[i]:
+            continue
         near = any(h >= 1 and abs(k * df - h * f_m) <= mains_zone * df
                    for f_m in mains_hz for h in (round(k * df / f_m),))
         if near:
