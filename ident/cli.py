@@ -25,7 +25,9 @@ examples:
 INPUT: an fnsi-lab MCAP recording, or .npz/.mat with u (n_samples, n_inputs),
 y (n_samples, n_outputs), fs, optional N, channels, input_channels (see docs/ident.md).
 Without --config: the excited band, and for simulated recordings the basis functions of
-the recording's truth.
+the recording's truth. Gaps or exponents you do not know: 'clearances: auto' (or per side
+[low, high]) and 'exponent: auto' in the YAML are estimated from the data first, printed
+with their uncertainty and the model error against them (docs/ident.md).
 """
 
 
