@@ -231,12 +231,11 @@ def recording_context(path: str | os.PathLike[str],
         return {}
     from fnsi_lab.daq.recording.reader import open_recording
 
-    rec = open_recording(path)
+    with open_recording(path) as rec:
+        excitation, truth = rec.excitation or {}, rec.truth or {}
     out: dict[str, Any] = {}
-    excitation = rec.excitation or {}
     if isinstance(excitation.get("rms"), (int, float)):
         out["force_rms"] = float(excitation["rms"])
-    truth = rec.truth or {}
     if isinstance(truth.get("contact_fraction"), dict):
         out["contact_fraction"] = contact_by_coefficient(
             nonlinearities, truth.get("nonlinearities") or [], truth["contact_fraction"])
