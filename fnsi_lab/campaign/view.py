@@ -101,7 +101,9 @@ def frequency_panels(c: Comparison) -> list[Panel]:
                         Series(f"mode_{k + 1}/runs", "", run_x, run_y, color, kind="points",
                                width=2.5, legend=False,
                                values={"force_rms": run_x, "frequency_hz": run_y})]
-        shift_series.append(Series(f"mode_{k + 1}", label, lv, shift, color, width=1.2))
+        # same colours as above: one legend (ten modes fill a panel's height)
+        shift_series.append(Series(f"mode_{k + 1}", label, lv, shift, color, width=1.2,
+                                   legend=False))
         all_f.append(run_y)
         all_s.append(shift)
     panels = [Panel("frequency", "natural frequency (Hz)", x,
