@@ -376,10 +376,9 @@ def test_smallsat_39_channels_gaps_auto():
         assert c["mean_real"] == pytest.approx(truth[c["name"]], rel=2e-3)
 
 
-def test_simulated_recording_truth_is_compared_never_used(tmp_path):
-    """A real MCAP recording of the chain with its stop: 'auto' gaps are estimated from the
-    data; the recording's truth only fills the coefficients' exact values and the gaps'
-    error, and raises no 'clearances differ' warning."""
+def _stop_recording(tmp_path):
+    """A real MCAP recording of the chain with its stop (fnsi-lab acquire), its stop's truth
+    and an ident config naming that element with clearances 'auto'."""
     import yaml
     import fnsi_lab
 
@@ -392,12 +391,21 @@ def test_simulated_recording_truth_is_compared_never_used(tmp_path):
     (tmp_path / "exp.yaml").write_text(yaml.safe_dump(exp))
     rec = tmp_path / "stop.mcap"
     fnsi_lab.acquire(str(tmp_path / "exp.yaml"), rec)
-    truth = fnsi_lab.open_recording(rec).truth
-    (el,) = truth["nonlinearities"]
+    (el,) = fnsi_lab.open_recording(rec).truth["nonlinearities"]
     cfg = {"band_hz": list(BAND), "order": 6, "max_order": 12,
            "inputs": [{"name": "F-X3", "driving_point": "X3"}],
            "nonlinearities": [{"name": el["name"], "kind": "trilinear",
                                "channels": {"X2": 1, "X3": -1}, "clearances": "auto"}]}
+    return rec, el, cfg
+
+
+def test_simulated_recording_truth_is_compared_never_used(tmp_path):
+    """'auto' gaps are estimated from the data; the recording's truth only fills the
+    coefficients' exact values and the gaps' error, and raises no 'clearances differ'
+    warning."""
+    import fnsi_lab
+
+    rec, el, cfg = _stop_recording(tmp_path)
     res = fnsi_lab.identify(str(rec), cfg, order=6).to_json()
     (nl,) = res["nonlinearities"]
     assert nl["estimated"] == ["g_neg", "g_pos"]
@@ -407,3 +415,35 @@ def test_simulated_recording_truth_is_compared_never_used(tmp_path):
     assert np.allclose(nl["clearances"], el["clearances"], rtol=2e-3)
     assert all(c["error_percent"] is not None and abs(c["error_percent"]) < 0.5
                for c in res["coefficients"])
+
+
+def test_live_service_shows_the_objective_in_rerun(tmp_path):
+    """The recording replayed through the live identification service with the 'auto'
+    config: the last update's view carries the objective profiles, and they reach a real
+    Rerun recording under /ident/parameters."""
+    rr = pytest.importorskip("rerun")
+    from rerun.chunk import RrdReader
+
+    from fnsi_lab.replay.service import IdentService, auto_view, config_identifier
+    from fnsi_lab.replay.source import ReplaySource
+    from fnsi_lab.viewer import paths
+    from fnsi_lab.viewer.log import log_identification
+
+    rec, el, cfg = _stop_recording(tmp_path)
+    src = ReplaySource(rec)
+    identify, _ = config_identifier(parse_ident_config(cfg), orders="2:12", channels=src.channels)
+    svc = IdentService.for_recording_metadata(src.channels, src.sample_rate_hz, src.metadata,
+                                              identify).start(src)
+    svc.finish()
+    src.close()
+    view = auto_view(svc.updates[-1])
+    profiles = view["parameters"]["profiles"]
+    assert [p["label"] for p in profiles] == [f"{el['name']}.g_neg", f"{el['name']}.g_pos"]
+    assert np.allclose([p["estimate"] for p in profiles], el["clearances"], rtol=2e-3)
+    out = tmp_path / "live.rrd"
+    stream = rr.RecordingStream("fnsi-lab-test")
+    stream.save(str(out))
+    log_identification(stream, view, update=svc.updates[-1].update)
+    stream.flush()
+    chunks = list(RrdReader(str(out)).stream().collect().stream())
+    assert any(str(c.entity_path).startswith(paths.PARAMETERS) for c in chunks)
