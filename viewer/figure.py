@@ -115,15 +115,15 @@ class Axis:
             lo, hi = self.lo, self.hi
         return (v - lo) / (hi - lo)
 
-    def ticks(self) -> tuple[np.ndarray, list[str]]:
-        """Tick values inside the range and their labels."""
+    def ticks(self, target: int = 6) -> tuple[np.ndarray, list[str]]:
+        """Tick values inside the range (about ``target`` of them) and their labels."""
         if self.log:
             a, b = math.ceil(math.log10(self.lo) - 1e-9), math.floor(math.log10(self.hi) + 1e-9)
             every = max(1, math.ceil((b - a + 1) / 8))
             exps = np.arange(a, b + 1, every)
             return 10.0 ** exps, [f"1e{int(e)}" if e not in (0, 1, 2) else f"{10 ** int(e)}"
                                   for e in exps]
-        t = nice_ticks(self.lo, self.hi)
+        t = nice_ticks(self.lo, self.hi, target)
         step = float(t[1] - t[0]) if t.size > 1 else 1.0
         return t, [format_tick(float(x), step) for x in t]
 
@@ -228,7 +228,7 @@ class Figure:
 
     def _frame(self, base: str, p: Panel) -> None:
         top, w, h = p.top, PANEL_W, p.height
-        xt, xl = p.x.ticks()
+        xt, xl = p.x.ticks(8)  # the plot is wider than tall: more ticks along x
         yt, yl = p.y.ticks()
         xu, yu = p.x.unit(xt) * w, top + (1 - p.y.unit(yt)) * h
         grid = [np.array([[x, top], [x, top + h]]) for x in xu] + \
