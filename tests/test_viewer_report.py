@@ -61,11 +61,13 @@ def test_report_from_json_and_from_the_recording(chain, capsys):
     result, _ = load_report_input(mcap, orders="2:10")
     write_json(result, d / "result.json")
     out = d / "from_json.html"
-    assert main(["report", str(d / "result.json"), "--out", str(out),
-                 "--recording", str(mcap)]) == 0
+    assert result["input"] == str(mcap)
+    # the JSON names its recording: the report finds the metadata without --recording
+    assert main(["report", str(d / "result.json"), "--out", str(out)]) == 0
     assert "report written to" in capsys.readouterr().out
     page = out.read_text(encoding="utf-8")
     assert set(_figures(page)) == set(FIGURES)
+    assert "acquisition start (UTC)" in page and "lumped" in page
     # every pole of the stabilisation diagram is drawn: one marker per pole
     n_poles = sum(len(o["poles"]) for o in result["stabilisation"])
     assert f"Stabilisation diagram ({n_poles} poles)" in page
