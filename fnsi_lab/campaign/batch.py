@@ -59,12 +59,16 @@ class BatchSpec:
         Fixed model order (None with ``auto``).
     orders : str or None
         Order sweep of the robust pipeline (None: the config's, else 2:60).
+    crc_check : bool
+        Check the recordings' CRCs (``--no-crc-check`` turns it off in every worker; it
+        does not change a result, so it is not part of the hash).
     """
 
     config: str
     config_sha256: str
     order: int | None = None
     orders: str | None = None
+    crc_check: bool = True
 
     @property
     def auto(self) -> bool:
@@ -311,8 +315,11 @@ def identify_task(item: PlannedInput, spec: BatchSpec) -> dict[str, Any]:
     from fnsi_lab.blas import limit_blas_threads
     from fnsi_lab.campaign.table import error_row, result_row
 
+    from fnsi_lab.daq.recording.reader import set_default_crc_check
+
     # one BLAS thread per worker: the workers already fill the cores
     limit_blas_threads(1)
+    set_default_crc_check(spec.crc_check)  # the worker may be another process
     worker = _worker_address()
     t0 = time.perf_counter()
     try:

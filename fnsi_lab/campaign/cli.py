@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 from fnsi_lab.errors import ConfigError
@@ -42,7 +43,8 @@ def _batch(args: argparse.Namespace) -> int:
     # a campaign table is this command's own state (rewritten on resume); anything else
     # under that name is the user's and needs --force
     check_output_path(out, force=args.force or is_campaign_table(out), option="--out")
-    spec = make_spec(args.config, order=args.order, auto=args.auto, orders=args.orders)
+    spec = replace(make_spec(args.config, order=args.order, auto=args.auto, orders=args.orders),
+                   crc_check=not getattr(args, "no_crc_check", False))
     inputs = expand_inputs(args.inputs)
     results_dir = Path(args.results) if args.results else out.parent
     results_dir.mkdir(parents=True, exist_ok=True)
