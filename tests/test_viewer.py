@@ -259,3 +259,20 @@ def test_view_spawn_without_display_says_how_to_open_it(rec_path, capsys, monkey
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
     assert main(["view", str(path), "--spawn"]) == 0
     assert "no display" in capsys.readouterr().err
+
+
+def test_lines_of_several_realizations_are_drawn_in_frequency_order(rec_path):
+    """Realizations come one after the other: a curve through them would run back."""
+    from fnsi_lab.viewer.frf import phase_deg
+
+    rec, path = rec_path
+    f = np.array([10.0, 20.0, 10.5, 20.5])  # realization 1, then 2
+    h = np.array([1.0, 2.0, 3.0, 4.0]) + 0j
+    vlog.log_frf(rec, f, measured=h, model=h)
+    _finish(rec)
+    got = read_rrd(path)
+    assert static_values(got[paths.FRF_MODEL], "frequency_hz") == [10.0, 10.5, 20.0, 20.5]
+    assert static_values(got[paths.FRF_MODEL], "re") == [1.0, 3.0, 2.0, 4.0]
+    # a phase wrap breaks the line instead of drawing a vertical jump
+    wrapped = phase_deg(np.exp(1j * np.radians([170.0, 179.0, -179.0, -170.0])))
+    assert np.isnan(wrapped[2]) and wrapped[1] == pytest.approx(179.0)

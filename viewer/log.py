@@ -21,6 +21,7 @@ import rerun as rr
 
 from fnsi_lab.viewer import paths
 from fnsi_lab.viewer.figure import Axis, Figure, Panel, Series, stack
+from fnsi_lab.viewer.frf import frequency_order, magnitude_db, phase_deg
 
 # RGB colours, one per series kind (colour-blind-friendly Okabe-Ito palette).
 _BLUE, _ORANGE, _GREEN = (0, 114, 178), (230, 159, 0), (0, 158, 115)
@@ -62,22 +63,6 @@ COEFFICIENT_PALETTE: tuple[tuple[int, int, int], ...] = (_BLUE, _RED, _GREEN, _P
 
 
 # ---------------------------------------------------------------------------- helpers
-def magnitude_db(frf: Any) -> np.ndarray:
-    """``20 log10 |H|``, with zeros mapped to -400 dB instead of -inf."""
-    mag = np.abs(np.asarray(frf))
-    with np.errstate(divide="ignore"):
-        return np.where(mag > 0, 20.0 * np.log10(np.where(mag > 0, mag, 1.0)), -400.0)
-
-
-def phase_deg(frf: Any) -> np.ndarray:
-    """Phase in degrees in (-180, 180], NaN where it wraps (so a line breaks, not jumps)."""
-    ph = np.degrees(np.angle(np.asarray(frf)))
-    out = ph.astype(float).copy()
-    jump = np.flatnonzero(np.abs(np.diff(ph)) > 180.0)
-    out[jump + 1] = np.nan
-    return out
-
-
 def _lighter(color: tuple[int, int, int], amount: float = 0.55) -> tuple[int, int, int]:
     return tuple(int(round(c + (255 - c) * amount)) for c in color)  # type: ignore[return-value]
 
@@ -177,7 +162,9 @@ def log_frf(rec: rr.RecordingStream, frequency_hz: Any, *, measured: Any = None,
         Identification update (shown in the title).
     """
     f = np.asarray(frequency_hz, dtype=float).ravel()
-    curves = {k: np.asarray(v).ravel() for k, v in
+    order = frequency_order(f)
+    f = f[order]
+    curves = {k: np.asarray(v).ravel()[order] for k, v in
               (("measured", measured), ("model", model), ("linear", linear)) if v is not None}
     mags = {k: magnitude_db(v) for k, v in curves.items()}
     phases = {k: phase_deg(v) for k, v in curves.items()}
@@ -337,16 +324,19 @@ def log_coefficients(rec: rr.RecordingStream, frequency_hz: Any,
         Identification update (shown in the titles).
     """
     freq = np.asarray(frequency_hz, dtype=float).ravel()
+    order = frequency_order(freq)
+    freq = freq[order]
     full, reduced, exact = dict(full or {}), dict(reduced or {}), dict(exact or {})
     band = np.ones(freq.size, bool) if excited is None else np.asarray(excited, bool).ravel()
     if band.size != freq.size or not band.any():
         band = np.ones(freq.size, bool)
+    band = band[order]
     names = list(dict.fromkeys(list(reduced) + list(full)))
     panels = []
     for k, name in enumerate(names):
         color = COEFFICIENT_PALETTE[k % len(COEFFICIENT_PALETTE)]
-        est = {w: np.asarray(t[name]).ravel() for w, t in (("full", full), ("reduced", reduced))
-               if name in t}
+        est = {w: np.asarray(t[name]).ravel()[order] for w, t in
+               (("full", full), ("reduced", reduced)) if name in t}
         known = exact.get(name)
         inc = [float(known)] if known is not None else []
         panel = Panel(paths.part(name), _title(f"Re {name}", update),

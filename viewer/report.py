@@ -249,15 +249,18 @@ def figure_coefficients(result: Mapping[str, Any]) -> Any | None:
     spectra = result.get("coefficient_spectra")
     if not spectra or not spectra.get("names"):
         return None
-    f = np.asarray(spectra["frequency_hz"], dtype=float)
-    excited = np.asarray(spectra.get("excited", np.ones(f.size)), dtype=bool)
+    from fnsi_lab.viewer.frf import frequency_order
+
+    order = frequency_order(spectra["frequency_hz"])
+    f = np.asarray(spectra["frequency_hz"], dtype=float)[order]
+    excited = np.asarray(spectra.get("excited", np.ones(f.size)), dtype=bool)[order]
     exact = exact_values(result)
     stats = {c["name"]: c for c in result.get("coefficients") or []}
     names = list(spectra["names"])
     fig, axes = _figure(9.0, 2.8 * len(names) + 0.6, rows=len(names), sharex=True)
     for k, (ax, name) in enumerate(zip(axes, names)):
         color = COEFF_COLOURS[k % len(COEFF_COLOURS)]
-        c = complex_array(spectra["values"][name])
+        c = complex_array(spectra["values"][name])[order]
         ax.plot(f, c.real, color=color, lw=1.2, label=f"Re {name}")
         ax.plot(f, c.imag, color=color, lw=0.8, alpha=0.35, label=f"Im {name}")
         st = stats.get(name)
@@ -270,8 +273,8 @@ def figure_coefficients(result: Mapping[str, Any]) -> Any | None:
                        label=f"exact {exact[name]:.6g}")
         if excited.any():
             ax.axvspan(f[excited].min(), f[excited].max(), color="#777777", alpha=0.07)
-            band_vals = np.concatenate([c.real[excited], c.imag[excited],
-                                        [exact.get(name, np.nan)]])
+            # Re sets the scale (Im of a physical coefficient is near 0: it may fall off)
+            band_vals = np.concatenate([c.real[excited], [exact.get(name, np.nan)]])
             band_vals = band_vals[np.isfinite(band_vals)]
             if band_vals.size:  # the excited band sets the scale, not extrapolated lines
                 lo, hi = np.percentile(band_vals, [1, 99])
@@ -280,7 +283,8 @@ def figure_coefficients(result: Mapping[str, Any]) -> Any | None:
         ax.set_ylabel(name)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7, loc="upper right")
-    axes[0].set_title("Nonlinear coefficient spectra (grey band: excited lines)")
+    axes[0].set_title("Nonlinear coefficient spectra (grey band: excited lines; "
+                      "the scale is set by Re there)")
     axes[-1].set_xlabel("frequency (Hz)")
     return fig
 
@@ -290,7 +294,10 @@ def figure_frf(result: Mapping[str, Any], output: str | None = None) -> Any | No
     frf = result.get("frf")
     if not frf or "underlying_linear" not in frf:
         return None
-    f = np.asarray(frf["frequency_hz"], dtype=float)
+    from fnsi_lab.viewer.frf import frequency_order, magnitude_db, phase_deg
+
+    order = frequency_order(frf["frequency_hz"])
+    f = np.asarray(frf["frequency_hz"], dtype=float)[order]
     i = driving_point(frf.get("outputs", []), frf.get("inputs", []), output)
     fig, (mag, ph) = _figure(9.0, 6.0, rows=2, sharex=True)
     for key, label, style in (("measured", "measured", dict(ls="none", marker=".", ms=2.5)),
@@ -298,10 +305,9 @@ def figure_frf(result: Mapping[str, Any], output: str | None = None) -> Any | No
                               ("underlying_linear", "underlying linear", dict(lw=1.5))):
         if key not in frf:
             continue
-        h = complex_array(frf[key])[:, i, 0]
-        with np.errstate(divide="ignore"):
-            mag.plot(f, 20 * np.log10(np.abs(h)), color=FRF_STYLE[key], label=label, **style)
-        ph.plot(f, np.degrees(np.angle(h)), color=FRF_STYLE[key], label=label, **style)
+        h = complex_array(frf[key])[order, i, 0]
+        mag.plot(f, magnitude_db(h), color=FRF_STYLE[key], label=label, **style)
+        ph.plot(f, phase_deg(h), color=FRF_STYLE[key], label=label, **style)
     name = (frf.get("outputs") or ["?"])[i]
     force = (frf.get("inputs") or ["force"])[0]
     mag.set_title(f"FRF {name} / {force}")
