@@ -451,8 +451,11 @@ def test_selected_order_at_the_end_of_the_sweep_is_flagged(tmp_path, capsys):
 
 
 def test_recover_survives_a_damaged_header_record(multi_chunk, tmp_path):
-    """The MCAP header's length field itself destroyed: the chunks after it are still found."""
+    """The MCAP header's length field itself destroyed: every record after it is still found
+    (metadata and attachments by their CRCs, chunks by theirs)."""
     path, blocks = multi_chunk
+    with open_recording(path) as rec:
+        metadata, attachments = rec.metadata, rec.attachments()
     data = bytearray(path.read_bytes())
     (opcode, start, end), *_ = _records(bytes(data))
     assert opcode == Opcode.HEADER
@@ -462,3 +465,6 @@ def test_recover_survives_a_damaged_header_record(multi_chunk, tmp_path):
     got = [d for _, _, d in _blocks(tmp_path / "out.mcap")]
     assert got == [b.data.tobytes() for b in blocks]  # every chunk after it, bit for bit
     assert report.damaged and report.damaged[0][0] == start
+    with open_recording(tmp_path / "out.mcap") as rec:
+        assert rec.attachments() == attachments
+        assert {k: v for k, v in rec.metadata.items() if k != "recovery"} == metadata

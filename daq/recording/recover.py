@@ -18,6 +18,7 @@ from __future__ import annotations
 import contextlib
 import mmap
 import os
+import re
 import struct
 import zlib
 from dataclasses import dataclass, field
@@ -328,23 +329,47 @@ class _BytesReader:
         return out
 
 
-def _resync(data: Any, pos: int, size: int) -> int | None:
-    """Offset of the next intact chunk (or data end) after ``pos``; None if none."""
-    i = pos
-    j = data.find(bytes([Opcode.DATA_END]) + (4).to_bytes(8, "little"), pos + 1)
-    while True:
-        i = data.find(bytes([Opcode.CHUNK]), i + 1)
-        if j != -1 and (i == -1 or j < i):
-            return j
-        if i == -1:
-            return None
+#: Records a resynchronisation may land on: each carries a CRC that proves it intact.
+_RESYNC_OPCODES = re.compile(bytes([ord("["), Opcode.CHUNK, Opcode.ATTACHMENT, Opcode.METADATA,
+                                    ord("]")]))
+
+
+def _intact_at(data: Any, i: int, size: int) -> bool:
+    """True if a chunk, attachment or fnsi-lab metadata record at ``i`` passes its CRC."""
+    opcode = data[i]
+    if opcode == Opcode.CHUNK:
         found = _chunk_at(data, i, size)
-        if found is not None:
-            try:
-                breakup_chunk(found[0], validate_crc=True)
-                return i
-            except Exception:  # noqa: BLE001 - look further
-                pass
+        if found is None:
+            return False
+        try:
+            breakup_chunk(found[0], validate_crc=True)
+            return True
+        except Exception:  # noqa: BLE001 - not an intact chunk
+            return False
+    end = _framing_ok(data, i, size)
+    if end is None or end - i < 9 + 8:
+        return False
+    content = data[i + 9:end]
+    if opcode == Opcode.ATTACHMENT:
+        crc = int.from_bytes(content[-4:], "little")
+        return crc != 0 and zlib.crc32(content[:-4]) == crc
+    try:  # metadata: only fnsi-lab's, whose crc32 entry proves it
+        record = Metadata.read(ReadDataStream(_BytesReader(content)))
+    except Exception:  # noqa: BLE001 - not a metadata record
+        return False
+    crc = record.metadata.get(topics.METADATA_CRC_KEY)
+    text = record.metadata.get(topics.METADATA_JSON_KEY)
+    return crc is not None and text is not None and topics.metadata_crc(record.name, text) == crc
+
+
+def _resync(data: Any, pos: int, size: int) -> int | None:
+    """Offset of the next intact chunk, attachment or metadata record (or of the data end)
+    after ``pos``; None if there is none."""
+    j = data.find(bytes([Opcode.DATA_END]) + (4).to_bytes(8, "little"), pos + 1)
+    for match in _RESYNC_OPCODES.finditer(data, pos + 1, j if j != -1 else size):
+        if _intact_at(data, match.start(), size):
+            return match.start()
+    return j if j != -1 else None
 
 
 def _read_spares(data: Any, size: int, copier: "_Copier") -> None:
