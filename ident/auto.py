@@ -348,7 +348,11 @@ def identify_auto(data, options: AutoOptions | dict | None = None, *,
                      & (detection >= options.detection_sigma))
     keep_modes = physical.copy()
     if options.out_of_band == "keep":
-        keep_modes |= ~md.in_band & md.stable & ~nyq
+        # real (non-oscillating) poles are no structural mode; they stay when they pass the
+        # out-of-band plausibility test, or when real_poles is 'keep'
+        real = np.abs(md.eigenvalues.imag) <= 1e-9 * np.abs(md.eigenvalues)
+        keep_modes |= (~md.in_band & md.stable & ~nyq
+                       & (~real | plausible_oob | (options.real_poles == "keep")))
     elif options.out_of_band == "stabilised":
         keep_modes |= plausible_oob
     if keep_modes.any() and not keep_modes.all():

@@ -84,9 +84,10 @@ def _print_summary(res: dict, out=None) -> None:
         print(f"  mode {i:2d}: {pl['frequency_hz']:10.4f} Hz  damping {100 * pl['damping_ratio']:7.3f} %{st}",
               file=out)
     for c in res["coefficients"]:
-        err = f"  error {c['error_percent']:+.3f} %" if c.get("error_percent") is not None else ""
-        print(f"  {c['name']}: mean {c['mean_real']:.6g} (std {c['std_real']:.3g}, "
-              f"log10|Re/Im| {c['log10_re_im']:.2f}), LS {c['ls_value']:.6g}{err}", file=out)
+        err = (f"  error {c['value_error_percent']:+.3f} %"
+               if c.get("value_error_percent") is not None else "")
+        print(f"  {c['name']}: value {c['value']:.6g}{err} (LS; mean Re {c['mean_real']:.6g}, "
+              f"std {c['std_real']:.3g}, log10|Re/Im| {c['log10_re_im']:.2f})", file=out)
     for w in res["warnings"]:
         print(f"  warning: {w}", file=out)
 
@@ -169,12 +170,12 @@ def _print_auto_summary(res: Any, out=None, warnings: list | tuple = ()) -> None
     rows.append(("reduced", "reduced"))
     for label, key in rows:
         for c in res.coefficients.get(key) or []:
-            err = (f"  error {c['error_percent']:+.3f} %" if c.get("error_percent") is not None
-                   else "")
+            err = (f"  error {c['value_error_percent']:+.3f} %"
+                   if c.get("value_error_percent") is not None else "")
             mark = " <- answer" if key == answer or (answer == "full" and key == "selected"
                                                      and res.mdi_order == res.selected_order) else ""
-            print(f"  {label} {c['name']}: mean {c['mean_real']:.6g} (std {c['std_real']:.3g})"
-                  f"{err}{mark}", file=out)
+            print(f"  {label} {c['name']}: value {c['value']:.6g}{err} (LS; mean Re "
+                  f"{c['mean_real']:.6g}, std {c['std_real']:.3g}){mark}", file=out)
     for w in warnings:
         print(f"  warning: {w}", file=out)
 

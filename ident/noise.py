@@ -146,8 +146,7 @@ def mains_contaminated_lines(Y: np.ndarray, U: np.ndarray, bins: np.ndarray,
     N = int(samples_per_period)
     df = float(sample_rate_hz) / N
     k_lo, k_hi = int(exc.min()), int(exc.max())
-    out: list[np.ndarray] = []
-    found: list[float] = []
+    zones: list[tuple[float, np.ndarray, np.ndarray]] = []
     for f_m in MAINS_HZ:
         for h in range(1, int(k_hi * df / f_m) + 1):
             f_h = h * f_m
@@ -155,15 +154,24 @@ def mains_contaminated_lines(Y: np.ndarray, U: np.ndarray, bins: np.ndarray,
                              int(np.floor(f_h / df + mains_zone)) + 1)
             zone = zone[(zone >= k_lo) & (zone <= k_hi)]
             off = zone[zone % step != offset]
-            if off.size == 0:
-                continue
-            hit = False
-            for X in (Y, U):
-                ref = noise_from_nonexcited(X, bins, off, half_width=half_width)   # (z, c)
-                pw = np.mean(np.abs(np.asarray(X)[:, off, :]) ** 2, axis=0)        # (z, c)
-                hit |= bool(np.any(pw > ratio * np.maximum(ref, np.finfo(float).tiny)))
-            if hit:
-                out.append(zone)
-                found.append(float(f_h))
+            if off.size:
+                zones.append((float(f_h), zone, off))
+    if not zones:
+        return np.zeros(0, int), []
+    every_off = np.unique(np.concatenate([z[2] for z in zones]))
+    # reference noise level at every off-grid zone line, once per signal
+    refs = [(np.asarray(X), noise_from_nonexcited(X, bins, every_off, half_width=half_width))
+            for X in (Y, U)]
+    out: list[np.ndarray] = []
+    found: list[float] = []
+    for f_h, zone, off in zones:
+        pos = np.searchsorted(every_off, off)
+        hit = False
+        for X, ref in refs:
+            pw = np.mean(np.abs(X[:, off, :]) ** 2, axis=0)                    # (z, c)
+            hit |= bool(np.any(pw > ratio * np.maximum(ref[pos], np.finfo(float).tiny)))
+        if hit:
+            out.append(zone)
+            found.append(f_h)
     lines = np.unique(np.concatenate(out)) if out else np.zeros(0, int)
     return lines, found
