@@ -335,6 +335,7 @@ class SimulatedSource(Source):
         self._lock_verify = threading.Lock()
         self._checker: threading.Thread | None = None
         self._check_error: BaseException | None = None
+        self._first_ready = threading.Event()  # realization 0 handed to the reader
         self._frf_attachment: list[tuple[str, str, bytes]] | None = None
 
     # ------------------------------------------------------------------ construction
@@ -454,6 +455,11 @@ class SimulatedSource(Source):
 
     def _check(self) -> None:
         try:
+            if self._pace is not None:  # paced: the first realization has the CPU first
+                while not (self._first_ready.wait(0.2) or self._halt.is_set()):
+                    pass
+                if self._halt.is_set():
+                    return
             self.verify_integration()
         except BaseException as exc:  # noqa: BLE001 - re-raised by describe_at_end
             self._check_error = exc
@@ -473,6 +479,7 @@ class SimulatedSource(Source):
                 while not self._halt.is_set():
                     try:
                         self._ready.put((r, data), timeout=0.2)
+                        self._first_ready.set()
                         break
                     except queue.Full:
                         continue
