@@ -258,37 +258,30 @@ def confidence_statement(separation_ratio: float, n_physical: int, disagreements
     parts = [f"{n_physical} mode(s) classified physical; separation ratio "
              + (f"{r:.3g}" if np.isfinite(r) else str(r))
              + f" (ambiguous below {ambiguous_ratio:g}, clear from {clear_ratio:g})."]
-    if kept_ns:
-        parts.append("Kept although not stabilised in frequency: "
-                     + ", ".join(f"{f:.2f} Hz" for f in kept_ns) + ".")
-    if vetoed:
-        parts.append("Above the MDI threshold but dropped because not stabilised in frequency: "
-                     + ", ".join(f"{f:.2f} Hz" for f in vetoed) + ".")
-    if below:
-        parts.append("Dropped because they do not stand out of the model's residual in their "
-                     "bandwidth (not detectable above noise or model error): "
-                     + ", ".join(f"{f:.2f} Hz" for f in below) + ".")
-    if drop_fs:
-        parts.append("Dropped although fully stable (possibly genuine weak modes; consider "
-                     "top_n or a manual threshold): " + ", ".join(f"{f:.2f} Hz" for f in drop_fs) + ".")
-    if disagreements.get("fallback"):
-        parts.append("The MDI gap is not clear, so every stable in-band mode stabilised in "
-                     "frequency with an MDI above 1e-3 of the largest was kept as well.")
-    if rescued:
-        parts.append("Kept below the MDI threshold because stabilised across orders: "
-                     + ", ".join(f"{f:.2f} Hz" for f in rescued) + ".")
-    if unresolved:
-        parts.append("Kept although narrower than half the line spacing (near-undamped: a "
-                     "weakly damped mode these periods barely resolve, or a disturbance; "
-                     "check its damping with longer periods): "
-                     + ", ".join(f"{f:.2f} Hz" for f in unresolved) + ".")
     hum = disagreements.get("mains_hum", [])
-    if hum:
-        parts.append("Dropped as mains hum (near-undamped at a 50/60 Hz harmonic): "
-                     + ", ".join(f"{f:.2f} Hz" for f in hum) + ".")
-    if marginal:
-        parts.append("Kept but within 2x of the detection limit: "
-                     + ", ".join(f"{f:.2f} Hz" for f in marginal) + ".")
+    named = [
+        ("Kept although not stabilised in frequency", kept_ns),
+        ("Above the MDI threshold but dropped because not stabilised in frequency", vetoed),
+        ("Dropped because they do not stand out of the model's residual in their bandwidth "
+         "(not detectable above noise or model error)", below),
+        ("Dropped although fully stable (possibly genuine weak modes; consider top_n or a "
+         "manual threshold)", drop_fs),
+        (None, None),
+        ("Kept below the MDI threshold because stabilised across orders", rescued),
+        ("Kept although narrower than half the line spacing (near-undamped: a weakly damped "
+         "mode these periods barely resolve, or a disturbance; check its damping with longer "
+         "periods)", unresolved),
+        ("Dropped as mains hum (near-undamped at a 50/60 Hz harmonic)", hum),
+        ("Kept but within 2x of the detection limit", marginal),
+    ]
+    for text, freqs in named:
+        if text is None:       # the fallback note sits between the drop and rescue lists
+            if disagreements.get("fallback"):
+                parts.append("The MDI gap is not clear, so every stable in-band mode stabilised "
+                             "in frequency with an MDI above 1e-3 of the largest was kept as "
+                             "well.")
+        elif freqs:
+            parts.append(f"{text}: " + ", ".join(f"{f:.2f} Hz" for f in freqs) + ".")
     if extra:
         parts.append(f"The answer keeps {extra} in-band pole pair(s) that are not physical "
                      "modes (removing them made the coefficients less consistent).")
