@@ -163,13 +163,12 @@ def _g(x: Any, digits: int = 6) -> str:
 
 # ---------------------------------------------------------------------------- figures
 def _figure(width: float = 9.0, height: float = 4.0, rows: int = 1, sharex: bool = False):
-    import matplotlib
+    # matplotlib's object API, not pyplot: no backend or global figure state is touched
+    # (the caller may be a notebook with its own backend), nothing to close afterwards
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")  # no display needed; idempotent
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(rows, 1, figsize=(width, height), sharex=sharex, squeeze=False,
-                             layout="constrained")
+    fig = Figure(figsize=(width, height), layout="constrained")
+    axes = fig.subplots(rows, 1, sharex=sharex, squeeze=False)
     return fig, [a[0] for a in axes]
 
 
@@ -322,12 +321,9 @@ def figure_frf(result: Mapping[str, Any], output: str | None = None) -> Any | No
 
 
 def svg(fig: Any) -> str:
-    """A matplotlib figure as inline SVG text (closed afterwards)."""
-    import matplotlib.pyplot as plt
-
+    """A matplotlib figure as inline SVG text."""
     buf = io.StringIO()
     fig.savefig(buf, format="svg")
-    plt.close(fig)
     text = buf.getvalue()
     return text[text.index("<svg"):]  # drop the XML prolog and DOCTYPE: inline in HTML
 
