@@ -507,11 +507,12 @@ def _fmt(unknowns: Sequence[Unknown], values: np.ndarray) -> str:
 
 
 def _newton(objective, values, cont, unknowns, dof, *, rel_step=0.02, tolerance=5e-4,
-            max_iterations=8):
+            trust=0.3, max_iterations=8):
     """Minimise ``V`` over the continuous parameters by Newton steps on a quadratic model.
 
     Stops when every step is below ``tolerance`` relative to the value or below a tenth of
-    the value's standard deviation (``dof``: residual degrees of freedom).
+    the value's standard deviation (``dof``: residual degrees of freedom). A step moves a
+    parameter by at most ``trust`` of its value (or four stencil widths).
 
     ``V(theta)`` is close to quadratic around its minimum (SmallSat: ``V(1.1 g)/V(1.01 g)``
     = 97 for a pure quadratic's 100) while the residual vector itself is strongly curved
@@ -556,7 +557,11 @@ def _newton(objective, values, cont, unknowns, dof, *, rel_step=0.02, tolerance=
             step = None
         if step is None:                         # not convex here: a bounded gradient step
             step = -np.sign(g) * 2 * h
-        step = np.clip(x + step, lo, hi) - x
+        # trust region: stay in the basin of the scan (with noise, V can be lower still where
+        # the gaps are so small that the stop columns become a linear copy of the noisy
+        # outputs; one unbounded step from the scan's best point landed there on the chain)
+        limit = np.maximum(trust * np.abs(x), 4 * h)
+        step = np.clip(np.clip(step, -limit, limit) + x, lo, hi) - x
         for _ in range(4):                       # backtrack if the model overshot
             f1 = f(x + step)
             if f1 <= f0:

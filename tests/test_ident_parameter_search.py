@@ -92,20 +92,22 @@ def test_relative_two_sided_stop_noise_free(chain_stop, sign):
         assert c.mean_real == pytest.approx(t, rel=1e-3)
 
 
-def test_relative_two_sided_stop_noisy():
+@pytest.mark.parametrize("seed", [0, 3])
+def test_relative_two_sided_stop_noisy(seed):
     """1 % white noise on every output, 16 periods averaged. The noise in the measured
-    relative motion smooths the kink the basis sees (errors in variables); the estimate is
-    biased towards larger gaps by roughly noise variance / periods (docs/ident.md)."""
+    relative motion, gated by the contact, biases the gaps upwards by about its own size
+    (docs/ident.md). Seed 3 once ended in the spurious low-gap region where the stop columns
+    become a linear copy of the noisy outputs (fixed by the Newton trust region)."""
     model = sim.lumped_model("trilinear")
     u, y = _simulate(model, periods=3)
     P = 16
     u, y = np.tile(u[-N:], (P, 1)), np.tile(y[-N:], (P, 1))
-    y = y + np.random.default_rng(0).standard_normal(y.shape) * np.std(y, axis=0) * 0.01
+    y = y + np.random.default_rng(seed).standard_normal(y.shape) * np.std(y, axis=0) * 0.01
     nl = _auto("stop", "trilinear", {"X2": 1, "X3": -1})
     data = _data(model, u, y, [nl], transient=0)
     res = estimate_basis_parameters(data, [nl], order=6)
     err = np.array(res.basis[0].clearances) / GAPS - 1
-    # measured +3.0 % / +4.4 % (seed 0); seeds 0-3: +0.7..+7.9 % (7 periods: +7..+12 %,
+    # measured +3.0 % / +4.4 % (seed 0), +0.7 % / +2.7 % (seed 3); seeds 0-3: +0.7..+7.8 % (7 periods: +7..+12 %,
     # 31 periods: +1.3..+3.9 % over 3 seeds); the bias does not vanish at 1 % noise
     assert np.all(np.abs(err) < 0.08)
     assert np.all(err > 0)                       # the sign of the errors-in-variables bias
