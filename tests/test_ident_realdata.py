@@ -195,3 +195,34 @@ def test_confidence_is_not_clear_when_the_answer_keeps_extra_poles():
     c = confidence_statement(100.0, 1, dict(base, extra_in_answer=1))
     assert c["level"] == "moderate" and "not physical" in c["statement"]
     assert confidence_statement(100.0, 1, dict(base, unresolved=[50.0]))["level"] == "moderate"
+
+
+def test_simulated_source_lab_disturbances_from_the_experiment_yaml():
+    """source.options.lab: pink noise, hum and offsets on every recorded channel."""
+    import yaml
+
+    from fnsi_lab.daq.config import parse_experiment
+    from fnsi_lab.daq.sim.source import SimulatedSource
+
+    base = yaml.safe_load((Path(__file__).resolve().parents[1] / "daq" / "data"
+                           / "lumped.yaml").read_text())
+    base["excitation"].update(periods=3, transient_periods=2, realizations=1)
+    src = {}
+    for label, lab in (("clean", None), ("lab", {"noise_colour": "pink", "hum_hz": 50,
+                                                  "hum_level": 0.05, "offset": 0.1})):
+        cfg = dict(base)
+        cfg["source"] = {"kind": "simulated",
+                         "options": dict(base["source"]["options"], snr_db=60,
+                                         **({"lab": lab} if lab else {}))}
+        s = SimulatedSource.from_config(parse_experiment(cfg))
+        src[label] = (s.simulate_realization(0), [c.name for c in s._channels])
+    clean, lab = src["clean"][0], src["lab"][0]
+    n = 4096
+    per = lab[-n:] - clean[-n:]
+    rms = np.sqrt(np.mean(clean[-n:] ** 2, axis=0))
+    # offset: 10 % of each channel's RMS (the hum and noise average out over the period)
+    np.testing.assert_allclose(per.mean(axis=0) / rms, 0.1, atol=0.01)
+    # hum: the 50 Hz line (on the grid: 1000 Hz / 4096 * 204.8 -> leaks) stands out
+    spec = np.abs(np.fft.rfft(per - per.mean(axis=0), axis=0))
+    k50 = int(round(50 * n / 1000))
+    assert np.all(spec[k50 - 1:k50 + 2].max(axis=0) > 20 * np.median(spec, axis=0))

@@ -33,7 +33,7 @@ from fnsi_lab.daq.sim.integrate import simulate
 from fnsi_lab.daq.sim.model import StructuralModel
 from fnsi_lab.daq.sim.nonlinear import NonlinearElement
 
-__all__ = ["LabRealism", "LabRecord", "duffing_model", "lab_experiment"]
+__all__ = ["LabRealism", "LabRecord", "duffing_model", "lab_experiment", "add_disturbances"]
 
 
 @dataclass(frozen=True)
@@ -163,6 +163,51 @@ def _noise(rng: np.random.Generator, shape: tuple[int, int], colour: str) -> np.
     return e / np.sqrt(np.mean(e ** 2, axis=0))
 
 
+def add_disturbances(x: np.ndarray, sample_rate_hz: float, rng: np.random.Generator, *,
+                     snr_db=None, noise_colour: str = "white", hum_hz: float | None = None,
+                     hum_level: float = 0.0, offset: float = 0.0, t0_s: float = 0.0
+                     ) -> np.ndarray:
+    """Sensor noise, mains hum and DC offsets on recorded channels.
+
+    Parameters
+    ----------
+    x : ndarray, shape (n_samples, n_channels)
+        Clean channels.
+    sample_rate_hz : float
+    rng : numpy.random.Generator
+    snr_db : float, sequence of (float or None), or None
+        Noise RMS ``10^(-snr/20)`` times each channel's RMS (per channel when a sequence;
+        None: no noise on that channel).
+    noise_colour : {'white', 'pink'}
+    hum_hz, hum_level : float
+        Hum at ``hum_hz`` and its 3rd harmonic (a third of it), amplitude ``hum_level``
+        times each channel's RMS, random phases; the mains is not synchronised with the
+        sampling (``t0_s`` shifts it).
+    offset : float
+        DC offset, fraction of each channel's RMS.
+
+    Returns
+    -------
+    ndarray, shape (n_samples, n_channels)
+    """
+    x = np.array(x, float)
+    n, c = x.shape
+    rms = np.sqrt(np.mean(x ** 2, axis=0))
+    snr = [snr_db] * c if snr_db is None or np.isscalar(snr_db) else list(snr_db)
+    if any(v is not None for v in snr):
+        e = _noise(rng, (n, c), noise_colour)
+        for i, v in enumerate(snr):
+            if v is not None:
+                x[:, i] += e[:, i] * rms[i] * 10 ** (-float(v) / 20)
+    if hum_hz and hum_level:
+        t = np.arange(n) / float(sample_rate_hz) + t0_s
+        ph = rng.uniform(0, 2 * np.pi, 2)
+        hum = (np.sin(2 * np.pi * hum_hz * t + ph[0])
+               + np.sin(2 * np.pi * 3 * hum_hz * t + ph[1]) / 3)
+        x += hum_level * hum[:, None] * rms
+    return x + offset * rms
+
+
 def lab_experiment(model: StructuralModel, excitation: Multisine, lab: LabRealism = LabRealism(),
                    *, seed: int = 0, oversample: int = 4) -> LabRecord:
     """Simulate a multisine test of ``model`` as a lab would record it.
@@ -210,18 +255,15 @@ def lab_experiment(model: StructuralModel, excitation: Multisine, lab: LabRealis
             y_per.append(_filter_and_sample(resp[sl], fs_fine, H, lab))
         u_r, y_r = np.stack(u_per), np.stack(y_per)                       # (P, N, c)
         rng = np.random.default_rng([seed, r])
-        t = (np.arange(lab.periods * N) / fs + rng.uniform(0, 1)).reshape(lab.periods, N)
-        for x, snr in ((u_r, lab.input_snr_db), (y_r, lab.snr_db)):
-            rms = np.sqrt(np.mean(x ** 2, axis=(0, 1)))
-            if snr is not None:
-                e = _noise(rng, (lab.periods * N, x.shape[2]), lab.noise_colour)
-                x += e.reshape(x.shape) * rms * 10 ** (-snr / 20)
-            if lab.hum_hz and lab.hum_level:
-                ph = rng.uniform(0, 2 * np.pi, 2)
-                hum = (np.sin(2 * np.pi * lab.hum_hz * t + ph[0])
-                       + np.sin(2 * np.pi * 3 * lab.hum_hz * t + ph[1]) / 3)
-                x += lab.hum_level * hum[:, :, None] * rms
-            x += lab.offset * rms
+        t0 = rng.uniform(0, 1)
+        u_r = add_disturbances(u_r.reshape(-1, u_r.shape[2]), fs, rng, snr_db=lab.input_snr_db,
+                               noise_colour=lab.noise_colour, hum_hz=lab.hum_hz,
+                               hum_level=lab.hum_level, offset=lab.offset, t0_s=t0
+                               ).reshape(u_r.shape)
+        y_r = add_disturbances(y_r.reshape(-1, y_r.shape[2]), fs, rng, snr_db=lab.snr_db,
+                               noise_colour=lab.noise_colour, hum_hz=lab.hum_hz,
+                               hum_level=lab.hum_level, offset=lab.offset, t0_s=t0
+                               ).reshape(y_r.shape)
         us.append(u_r)
         ys.append(y_r)
     truth = {el.name: dict(el.coefficients) for el in model.nonlinearities}

@@ -14,6 +14,13 @@ Registered as kinds ``simulated`` and ``smallsat`` (:mod:`daq.registry`). Option
         oversample: 10          # internal rate = oversample * sample_rate_hz
         passband: 0.4           # anti-alias filter flat up to passband * fs
         verify: true            # measure the integration error (2x internal rate run)
+        lab:                    # optional lab disturbances of every recorded channel
+          noise_colour: pink    # white (default) | pink: the snr_db noise with a 1/f spectrum
+          hum_hz: 50            # mains hum at hum_hz and 3 hum_hz ...
+          hum_level: 0.01       # ... amplitude as a fraction of each channel's RMS
+          offset: 0.02          # DC offset, fraction of each channel's RMS
+      (DAC hold, a causal anti-alias filter and one period per realisation:
+      daq.sim.lab.lab_experiment)
 
 A model given as matrices::
 
@@ -66,6 +73,7 @@ class SimOptions:
     oversample: int
     passband: float
     verify: bool
+    lab: Mapping[str, Any] | None = None
 
 
 # ---------------------------------------------------------------------------- options
@@ -228,9 +236,20 @@ def parse_options(config: ExperimentConfig) -> SimOptions:
         noise_seed=sec.integer("noise_seed", 1, minimum=0),
         oversample=sec.integer("oversample", 10, minimum=1, maximum=1000),
         passband=sec.number("passband", 0.4, minimum=0.05, maximum=0.5),
-        verify=sec.boolean("verify", True))
+        verify=sec.boolean("verify", True), lab=_lab_options(sec.section("lab")))
     sec.finish()
     return opts
+
+
+def _lab_options(sec: Section) -> dict[str, Any] | None:
+    """``lab:`` disturbances of the recorded channels (daq.sim.lab.add_disturbances)."""
+    lab = {"noise_colour": sec.string("noise_colour", "white", choices=("white", "pink")),
+           "hum_hz": sec.number("hum_hz", 0.0, minimum=0.0),
+           "hum_level": sec.number("hum_level", 0.0, minimum=0.0),
+           "offset": sec.number("offset", 0.0)}
+    sec.finish()
+    default = {"noise_colour": "white", "hum_hz": 0.0, "hum_level": 0.0, "offset": 0.0}
+    return None if lab == default else lab
 
 
 def _per_channel(sec: Section, key: str, channels: list[str], default: Any, check, what: str
@@ -496,9 +515,14 @@ class SimulatedSource(Source):
                     continue
 
     def _add_noise(self, clean: np.ndarray, r: int) -> np.ndarray:
+        rng = np.random.default_rng([self.options.noise_seed, r])
+        if self.options.lab:   # coloured noise, hum, offsets (daq.sim.lab)
+            from fnsi_lab.daq.sim.lab import add_disturbances
+            return add_disturbances(clean, self._sample_rate_hz, rng,
+                                    snr_db=[self.options.snr_db.get(c.name) for c in self._channels],
+                                    **self.options.lab)
         if not self.options.snr_db:
             return clean
-        rng = np.random.default_rng([self.options.noise_seed, r])
         out = clean.copy()
         for i, c in enumerate(self._channels):
             snr = self.options.snr_db.get(c.name)
