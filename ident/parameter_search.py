@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -52,7 +52,8 @@ from fnsi_lab.ident.periodic import FrequencyData, with_basis
 
 __all__ = ["Unknown", "ParameterEstimate", "ParameterSearchResult", "search_spaces",
            "fixed_state_residual", "estimate_basis_parameters", "has_unknown_parameters",
-           "AUTO_EXPONENTS", "DEFAULT_SEARCH_ORDER", "AUTO_SIGNED_EXPONENT_INTERVAL", "AUTO_CLEARANCE_FRACTION"]
+           "AUTO_EXPONENTS", "DEFAULT_SEARCH_ORDER", "AUTO_SIGNED_EXPONENT_INTERVAL",
+           "AUTO_CLEARANCE_FRACTION"]
 
 #: ``exponent: auto`` of an unsigned polynomial: the whole exponents tried.
 AUTO_EXPONENTS: tuple[float, ...] = (2.0, 3.0, 4.0, 5.0, 6.0, 7.0)
@@ -246,8 +247,8 @@ def search_spaces(data: FrequencyData, basis: Sequence[Nonlinearity]) -> list[Un
                     f"{'below' if sp.interval is not None else 'not beyond'} the search "
                     f"interval [{lo:.4g}, {hi:.4g}] (the stop is never in contact; excite "
                     "harder, or give the clearance or drop the element)")
-            out.append(Unknown(i, nl.name, sp.parameter, interval=(float(lo), float(min(hi, reach))),
-                               reach=reach))
+            out.append(Unknown(i, nl.name, sp.parameter,
+                               interval=(float(lo), float(min(hi, reach))), reach=reach))
     return out
 
 
@@ -312,7 +313,8 @@ def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity]
                               weighted: bool = True, grid_points: int = 7,
                               max_relative_std: float = 0.1, min_margin: float = 25.0,
                               profile_offsets: Sequence[float] = (-0.03, 0.03),
-                              progress: Callable[[str], None] | None = None) -> ParameterSearchResult:
+                              progress: Callable[[str], None] | None = None
+                              ) -> ParameterSearchResult:
     """Estimate the unknown clearances and exponents of ``basis`` from the data.
 
     Parameters
@@ -441,7 +443,8 @@ def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity]
             margin = (float((rest[0] - v_best) * y_energy / s2) if rest.size and s2 > 0
                       else float("inf"))
         srt = np.argsort(pv)
-        est = ParameterEstimate(u, float(values[k]), float(std[k]) if u.continuous else float("nan"),
+        est = ParameterEstimate(u, float(values[k]),
+                                float(std[k]) if u.continuous else float("nan"),
                                 np.asarray(pv, float)[srt], np.asarray(po, float)[srt], margin,
                                 _motion_noise_std(data, basis[u.element]) if u.reach else None)
         _refuse_if_unclear(est, basis[u.element], max_relative_std, min_margin)

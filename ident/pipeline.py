@@ -475,7 +475,8 @@ def _nonlinearity_json(nl: Nonlinearity, search: Any = None, truth: Mapping | No
                             for p, e in est.items()}
     given = {t.get("name"): t for t in (truth or {}).get("nonlinearities") or []
              if isinstance(t, dict)}.get(nl.name)
-    if given and pars and any(p in est for p in pars) and len(given.get("clearances") or ()) == len(pars):
+    if (given and pars and any(p in est for p in pars)
+            and len(given.get("clearances") or ()) == len(pars)):
         out["clearance_error_percent"] = [
             100.0 * (nl.parameter(p) / float(g) - 1.0) if p in est and float(g) else None
             for p, g in zip(pars, given["clearances"])]

@@ -34,7 +34,8 @@ CONTACT = (2.0e4, 1.5e4)       # N/m
 
 
 def _simulate(model, periods=3, seed=1):
-    u = np.asarray(multisine(N, FS, (5, 60), 20.0, n_periods=periods, seed=seed).signal).reshape(-1, 1)
+    ms = multisine(N, FS, (5, 60), 20.0, n_periods=periods, seed=seed)
+    u = np.asarray(ms.signal).reshape(-1, 1)
     y = sim.simulate(model, u, FS, periodic=N).displacement
     return u, y
 
@@ -107,8 +108,8 @@ def test_relative_two_sided_stop_noisy(seed):
     data = _data(model, u, y, [nl], transient=0)
     res = estimate_basis_parameters(data, [nl], order=6)
     err = np.array(res.basis[0].clearances) / GAPS - 1
-    # measured +3.0 % / +4.4 % (seed 0), +0.7 % / +2.7 % (seed 3); seeds 0-3: +0.7..+7.8 % (7 periods: +7..+12 %,
-    # 31 periods: +1.3..+3.9 % over 3 seeds); the bias does not vanish at 1 % noise
+    # measured +3.0 % / +4.4 % (seed 0), +0.7 % / +2.7 % (seed 3); seeds 0-3: +0.7..+7.8 %
+    # (7 periods: +7..+12 %, 31 periods: +1.3..+3.9 % over 3 seeds)
     assert np.all(np.abs(err) < 0.08)
     assert np.all(err > 0)                       # the sign of the errors-in-variables bias
     noise_rel = np.array([e.motion_noise_std / e.value for e in res.estimates])
@@ -226,7 +227,8 @@ def test_unresolved_elements_cannot_be_evaluated():
     nl = _auto("stop", "trilinear", {"a": 1})
     with pytest.raises(IdentError, match="not estimated yet"):
         nl.evaluate(np.zeros(4))
-    assert nl.with_parameters({"g_neg": 1.0, "g_pos": 2.0}).evaluate(np.array([3.0])).tolist() == [[0.0, 1.0]]
+    done = nl.with_parameters({"g_neg": 1.0, "g_pos": 2.0})
+    assert done.evaluate(np.array([3.0])).tolist() == [[0.0, 1.0]]
 
 
 def test_search_spaces_from_the_motion(chain_stop):
