@@ -226,3 +226,23 @@ def test_simulated_source_lab_disturbances_from_the_experiment_yaml():
     spec = np.abs(np.fft.rfft(per - per.mean(axis=0), axis=0))
     k50 = int(round(50 * n / 1000))
     assert np.all(spec[k50 - 1:k50 + 2].max(axis=0) > 20 * np.median(spec, axis=0))
+
+
+def test_user_arrays_with_realization_starts_and_excited_lines():
+    """One long record (pauses between realisations) and the excited lines in the file."""
+    rec = _lab(R=2, N=1024, snr_db=60)
+    gap, N = 300, 1024
+    u = np.concatenate([np.concatenate([np.zeros((gap, 1)), np.tile(rec.u[r, 0], (2, 1))])
+                        for r in range(2)])
+    y = np.concatenate([np.concatenate([np.zeros((gap, 1)), np.tile(rec.y[r, 0], (2, 1))])
+                        for r in range(2)])
+    src = {"u": u, "y": y, "fs": FS, "N": N, "realization_starts": [0, gap + 2 * N],
+           "transient_samples": gap + N, "excited_lines": rec.excited_lines}
+    res = fnsi_lab.identify(src, CUBIC, order=2)
+    j = res.to_json()
+    assert j["n_realizations"] == 2 and j["n_periods"] == 1
+    assert j["excitation"]["source"] == "given" and j["excitation"]["grid"] == "odd"
+    assert j["time_base_choice"]["chosen"] in ("band-limited", "bilinear")
+    assert res.coefficients[0]["value"] == pytest.approx(DUFFING[3], rel=0.01)
+    with pytest.raises(fnsi_lab.errors.FnsiLabError):
+        fnsi_lab.identify(dict(src, excited_lines=[0, 5]), CUBIC, order=2)
