@@ -375,8 +375,15 @@ def test_serve_web_listens_on_localhost_only(write_recording, tmp_path):
         assert len(lines) == 2, listening
         assert all("127.0.0.1:" in ln for ln in lines), lines
     finally:
-        proc.terminate()
+        proc.terminate()  # SIGTERM: handled like Ctrl-C, the server goes with the command
         proc.wait(timeout=30)
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline:
+        listening = subprocess.run(["ss", "-ltn"], capture_output=True, text=True).stdout
+        if f":{ports[0]} " not in listening and f":{ports[1]} " not in listening:
+            break
+        time.sleep(0.2)
+    assert f":{ports[1]} " not in listening, "the web viewer server outlived the command"
 
 
 # ---------------------------------------------------------------------------- exit codes

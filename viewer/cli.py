@@ -107,10 +107,12 @@ def start_web_server(host: str, grpc_port: int, web_port: int,
     if exe is None:
         raise ViewerError("--serve-web needs the `rerun` executable of rerun-sdk on PATH "
                           "(fix: pip install rerun-sdk, or activate its environment)")
+    # its own process group: `rerun` on PATH is a launcher whose child is the server, and
+    # both must go when this process exits
     proc = subprocess.Popen([exe, "--serve-web", "--bind", host, "--port", str(grpc_port),
                              "--web-viewer-port", str(web_port)],
                             stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.DEVNULL)
+                            stderr=subprocess.DEVNULL, start_new_session=True)
     atexit.register(_stop_server, proc)
     probe = "127.0.0.1" if host in ("0.0.0.0", "::", "") else host
     deadline = time.monotonic() + timeout_s
@@ -131,12 +133,26 @@ def start_web_server(host: str, grpc_port: int, web_port: int,
 
 
 def _stop_server(proc: "subprocess.Popen[bytes]") -> None:
-    if proc.poll() is None:
-        proc.terminate()
+    """Stop the server's whole process group (the launcher and the server it started)."""
+    import signal
+
+    try:
+        os.killpg(proc.pid, signal.SIGTERM)
+    except ProcessLookupError:
+        return
+    deadline = time.monotonic() + 5.0
+    while time.monotonic() < deadline:
+        proc.poll()  # reap the launcher
         try:
-            proc.wait(timeout=5)
-        except subprocess.TimeoutExpired:
-            proc.kill()
+            os.killpg(proc.pid, 0)  # anyone of the group left?
+        except ProcessLookupError:
+            return
+        time.sleep(0.05)
+    try:
+        os.killpg(proc.pid, signal.SIGKILL)
+    except ProcessLookupError:
+        pass
+    proc.poll()
 
 
 @dataclass
