@@ -21,8 +21,9 @@ grid (every line, odd lines, or every ``s``-th line from an offset) filling a ba
    are runs shorter than ``4 min_run`` whose peak sits at a mains harmonic and stands
    ``mains_ratio`` above their median (the leakage skirt of strong hum);
 4. mains: a candidate within ``mains_zone`` lines of a multiple of 50 or 60 Hz whose power
-   departs from its run's median by more than ``mains_ratio`` is hum (leakage at a band
-   edge, or hum on top of a design line).
+   departs by more than ``mains_ratio`` from the median of its run's lines within 20 grid
+   steps (outside that zone) is hum (leakage at a band edge, or hum on top of a design
+   line).
 
 Pure numpy; spectra ``(n_lines, n_channels)``.
 """
@@ -130,8 +131,9 @@ def detect_excited_lines(drive_power: np.ndarray, sample_rate_hz: float,
         Lines within this many lines of a mains harmonic are checked (hum off the DFT grid
         leaks onto a few lines on each side).
     mains_ratio : float
-        Such a line is hum when its power differs from its run's median by more than this
-        factor (a flat or smooth design has neighbours within a few dB).
+        Such a line is hum when its power differs from the local design level (its run's
+        lines within 20 grid steps, outside the zone) by more than this factor (a flat or
+        smooth design has neighbours within a few dB).
 
     Returns
     -------
@@ -182,8 +184,11 @@ def detect_excited_lines(drive_power: np.ndarray, sample_rate_hz: float,
         near = any(h >= 1 and abs(k * df - h * f_m) <= mains_zone * df
                    for f_m in mains_hz for h in (round(k * df / f_m),))
         if near:
+            # the design level there: the same run's lines within 20 grid steps that are
+            # clear of the harmonic's zone (shaped designs vary along the band)
             run = cand[run_id == run_id[i]]
-            ref = float(np.median(pw[run]))
+            local = run[(np.abs(run - k) <= 20 * step) & (np.abs(run - k) > mains_zone)]
+            ref = float(np.median(pw[local if local.size else run]))
             keep[i] = ref / mains_ratio <= pw[k] <= ref * mains_ratio
     mains, cand = cand[~keep], cand[keep]
     return ExcitationGrid(lines=cand.astype(int), step=step, offset=offset,

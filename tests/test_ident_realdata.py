@@ -64,6 +64,16 @@ def test_full_multisine_hum_outside_band_is_not_excitation():
     np.testing.assert_array_equal(g.lines, ms.excited_lines)
 
 
+def test_shaped_design_near_mains_is_kept():
+    """A design falling 20 dB across the band: lines near 50/100 Hz are judged locally."""
+    N, fs = 8192, 1000.0
+    k = np.arange(41, 1230)                                  # 5-150 Hz, full grid
+    X = np.zeros(N // 2 + 1, complex)
+    X[k] = np.exp(2j * np.pi * np.random.default_rng(1).random(k.size)) * np.logspace(0, -1, k.size)
+    g = detect_excited_lines(np.abs(X) ** 2, fs, N)
+    np.testing.assert_array_equal(g.lines, k)
+
+
 # ------------------------------------------------------------------------ noise, hum, layout
 def test_noise_level_from_the_non_excited_lines():
     """One period per realisation: the off-grid lines give the noise variance of Y(k)."""
