@@ -252,6 +252,68 @@ def exponents(table: str, rows: list[dict]) -> dict:
     return out
 
 
+#: What the tables show, in words (written with the numbers of 2026-11-23; re-read after a run).
+NOTES = [
+    "### Reading the tables", "",
+    "- **Channels**: past 71 (`n_max + m_e + 8`) the subspace step works on 71 output "
+    "directions, so its cost and the sweep's stop growing with the channel count (exponents "
+    "0.6 and 0.05 against 1.8 for the subspace step before, issue 13: 0.6 s at 39 channels, "
+    "27.7 s at 312); what still grows is reading the data (prepare) and the projection "
+    "`Y W`. The mode counts of 78 and 156 channels (5 and 7 of 11) are the order selection's, "
+    "not the compression's: 78 channels gave the same order, modes and NC2-Z values compressed "
+    "and with every channel, and the accuracy table compares 312 channels both ways.",
+    "- **Realisations**: the sweep, the model error and the B, D least squares sum the stacked "
+    "realisations per line (sweep exponent 0.17), but the subspace step runs the exact QR over "
+    "every line (exponent 1.07): the block-Toeplitz Gram form would cost one realisation's, "
+    "and ten realisations took 1.7x one with it, but it lost 4 of 10 modes with 5 "
+    "realisations (round-off in the Schur complement), so it only runs beyond 1.2e11 flops "
+    "(docs/ident.md, 'Many channels'). Target not met: 3.2x here (2.8x in a quieter run).",
+    "- **Orders**: the sweep and the subspace step grow as the square of the largest order "
+    "(one normal matrix of `m_e n` unknowns per order; block rows and SVD size from `n_max`).",
+    "- **Lines** (longer periods at 1 kHz, 5-250 Hz): linear, as every step sums over lines.",
+    "- **Periods**: two or more steady periods switch the noise weighting on. On this noise-free "
+    "simulation NC2-Z is then +0.10 % off (8/11 modes) against -0.001 % with one period; the "
+    "same tree with the issue-13 files reverted gives the same +0.099 % / +0.095 % (so not a "
+    "scaling regression), while the tree before issue 13 (dfccc0c) gave -0.004 % / -0.007 %: "
+    "a change elsewhere in the weighted path since then (for the lead to look at).",
+    "- **Sampling rate**: 51.2 kHz is the 1.024 kHz simulation interpolated band-limited "
+    "(one steady period, 409600 samples, same 1960 lines); the cost is the DFT and the "
+    "basis evaluation on 8x oversampled periods. Its accuracy (5/11 modes, NC2-Z -0.04 / "
+    "-0.06 %) drops because the 5-250 Hz band is 1 % of the unit circle at that rate (poles "
+    "crowd at z = 1); identifying on a decimated record (same lines) would avoid it, not done.",
+    "",
+]
+
+
+def targets(results: dict) -> list[str]:
+    """The issue-13 targets against the rows that measure them (CPU seconds)."""
+    out = ["### Targets (orders 2..60, 2008 lines; CPU s of the identification)", "",
+           "| target | measured | met |", "|---|---|---|"]
+    by = {t: {r["case"].get(TABLES[t][0]): r for r in rows}
+          for t, rows in results.items() if t != "accuracy"}
+    ch = by.get("channels", {})
+    if 312 in ch:
+        r = ch[312]
+        ce = r["coef_error_pct"]
+        err = max(abs(ce["NC2-Z:neg"]), abs(ce["NC2-Z:pos"]))
+        ok = r["cpu_s"] < 8.19 and err < 0.05 and r["modes_found"] >= 9 and r["peak_gb"] < 2
+        out.append(f"| 312 channels: < 8.19 s (goal 4 s), NC2-Z within 0.05 %, >= 9/11 modes, "
+                   f"< 2 GB | {r['cpu_s']:.2f} s, {err:.3f} %, {r['modes_found']}/11, "
+                   f"{r['peak_gb']:.2f} GB | {'yes' if ok else 'no'}"
+                   f"{' (goal 4 s: no)' if ok and r['cpu_s'] > 4 else ''} |")
+    if 1000 in ch:
+        r = ch[1000]
+        ok = r["cpu_s"] < 30 and r["peak_gb"] < 4
+        out.append(f"| 1000 channels: < 30 s, < 4 GB | {r['cpu_s']:.2f} s, {r['peak_gb']:.2f} GB "
+                   f"| {'yes' if ok else 'no'} |")
+    re_ = by.get("realisations", {})
+    if 1 in re_ and 10 in re_:
+        q = re_[10]["cpu_s"] / re_[1]["cpu_s"]
+        out.append(f"| 10 realisations of one period <= 2x one | {re_[10]['cpu_s']:.2f} s / "
+                   f"{re_[1]['cpu_s']:.2f} s = {q:.2f}x | {'yes' if q <= 2 else 'no'} |")
+    return out + [""]
+
+
 def markdown(results: dict, repeat: int) -> str:
     """The 'Scaling' section of bench/RESULTS.md."""
     lines = [f"## Scaling (issue 13; {time.strftime('%Y-%m-%d %H:%M', time.gmtime())} UTC, "
@@ -271,6 +333,7 @@ def markdown(results: dict, repeat: int) -> str:
              "an otherwise idle machine); the wall and step times are inflated by the other "
              "jobs on the machine (load 10-14 on 2 cores during these runs), which is why the "
              "best run is chosen by CPU time and the repeats are interleaved.", ""]
+    lines += targets(results)
     for table, rows in results.items():
         if table == "accuracy":
             continue
@@ -288,7 +351,7 @@ def markdown(results: dict, repeat: int) -> str:
                 f"{ce.get('NC2-Z:pos', float('nan')):+.4f} |")
         ex = exponents(table, rows)
         lines += ["", "Growth exponents: " + ", ".join(
-            f"{k.replace('_s', '').replace('_gb', '')} {v:.2f}" for k, v in ex.items()), ""]
+            f"{k.rsplit('_', 1)[0]} {v:.2f}" for k, v in ex.items()), ""]
     if "accuracy" in results:
         lines += ["### accuracy: compressed subspace step against every channel", "",
                   "| case | CPU s | wall s | order | modes | NC2-Z neg / pos % |", "|---|---|---|---|---|---|"]
@@ -297,6 +360,7 @@ def markdown(results: dict, repeat: int) -> str:
             lines.append(f"| {label} | {r['cpu_s']:.1f} | {r['total_s']:.1f} | {r['order']} | {r['modes_found']}/11 | "
                          f"{ce['NC2-Z:neg']:+.4f} / {ce['NC2-Z:pos']:+.4f} |")
         lines.append("")
+    lines += NOTES
     return "\n".join(lines)
 
 
