@@ -267,7 +267,7 @@ def test_basis_functions():
     q = np.stack([d, 2 * d], axis=1)
     rel = Nonlinearity("r", "polynomial", {"x2": 1, "x1": -1}, exponent=3)
     assert np.allclose(evaluate_basis([rel], q, None, ["x1", "x2"])[:, 0], d ** 3)
-    with pytest.raises(ChannelError, match="not a measured output"):
+    with pytest.raises(ChannelError, match="not among the identified outputs"):
         rel.location_vector(["x1", "x3"])
 
 
@@ -423,7 +423,7 @@ def test_coefficients_need_driving_point_and_measured_channels(cubic_sim):
     mdl2 = fnsi.model_at_order(fnsi.subspace_decomposition(data2, max_order=6), data2, 6)
     with pytest.raises(NotIdentifiableError, match="driving point 'X3'.*not a measured output"):
         nonlinear_coefficients(mdl2, data2, [nl2], driving_point="X3")
-    with pytest.raises(NotIdentifiableError, match="not a measured output"):
+    with pytest.raises(NotIdentifiableError, match="not among the identified outputs"):
         nonlinear_coefficients(mdl2, data2, [Nonlinearity("k2", "polynomial", {"X1": 1, "X3": -1})],
                                driving_point="X1")
 
