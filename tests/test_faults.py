@@ -422,6 +422,69 @@ def test_run_whose_identification_fails_exits_1_with_the_reason(tmp_path, capsys
         assert rec.n_blocks == 40
 
 
+#: A failed identification as `fnsi-lab ident --json` writes it (lumped recording, ident band
+#: 100-200 Hz, information criterion over the processed band): poles fitted to lines the
+#: multisine (5-50 Hz) never drove, no excited line, an empty FRF.
+FAILED_RESULT = {
+    "method": "auto", "order": 2, "input": "l.mcap", "outputs": ["X1", "X2", "X3"],
+    "inputs": ["F-X3"], "band_hz": [100.0, 200.0], "n_lines": 820, "n_excited_lines": 0,
+    "selected_order": 2, "mdi_order": 2, "mdi_norm": "h2", "threshold": 23.9, "final": "full",
+    "modes": [], "coefficients": [], "coefficient_spectra": None, "criterion": "mdl",
+    "poles": [{"frequency_hz": 100.65, "damping_ratio": 5.5e-4, "stable": True,
+               "physical": False}],
+    "stabilisation": [{"order": 2, "poles": [{"frequency_hz": 100.65, "damping_ratio": 5.5e-4,
+                                              "class": "new", "unstable": False,
+                                              "mac": None}]}],
+    "information_criterion": [{"order": 2, "value": 0.9988, "stable": True},
+                              {"order": 3, "value": None, "stable": False}],
+    "mdi": [{"frequency_hz": 100.65, "damping_ratio": 5.5e-4, "mdi_h2": 23.9, "in_band": True,
+             "stabilisation": "new", "physical": False}],
+    "frf": {"frequency_hz": [], "outputs": ["X1", "X2", "X3"], "inputs": ["F-X3"],
+            "underlying_linear": {"re": [], "im": []}, "measured": {"re": [], "im": []},
+            "model": {"re": [], "im": []}},
+}
+
+
+def test_run_cli_whose_identification_fails_exits_1_without_traceback(tmp_path):
+    """The real command on the lumped experiment (daq/data/lumped.yaml) with an ident band
+    that holds no excited line. With the information criterion over the processed band the
+    pipeline itself does not object (as on the 39-output SmallSat, where the HTML report then
+    crashed on the empty FRF): the service refuses the result. Exit 1, one line naming both
+    bands, no traceback; the HTML report is skipped with one line saying so."""
+    ident = tmp_path / "band.yaml"
+    ident.write_text("band_hz: [100, 200]\nauto: {ic_band: processed}\n")
+    out = tmp_path / "l.mcap"
+    r = _cli("run", "--config", str(Path(__file__).parents[1] / "daq" / "data" / "lumped.yaml"),
+             "--ident", str(ident), "--out", str(out), "--orders", "2:6", "--quiet")
+    assert r.returncode == 1, r.stderr
+    line = _one_line_error(r.stderr)
+    assert line.startswith("fnsi-lab run: error: identification failed: "), line
+    assert "no excited line in the processed band 100-200 Hz" in line and "5.127-49.8 Hz" in line
+    html = out.with_suffix(".html")
+    assert not html.exists() and f"no HTML report: no identification to report ({html} not " \
+        "written)" in r.stderr
+    with open_recording(out) as rec:  # the recording itself is complete
+        assert rec.n_blocks == 328
+
+
+def test_report_of_a_failed_identification_is_written_and_exits_1(tmp_path):
+    """`fnsi-lab report` on the JSON of an identification without an excited line: the page
+    is written with what exists and opens with the failure; exit 1, one line, no traceback."""
+    import json
+
+    result = tmp_path / "failed.json"
+    result.write_text(json.dumps(FAILED_RESULT))
+    out = tmp_path / "failed.html"
+    r = _cli("report", str(result), "--out", str(out))
+    assert r.returncode == 1, r.stderr
+    line = _one_line_error(r.stderr)
+    assert "identification failed: no excited line in the processed band 100-200 Hz" in line
+    assert f"{out} was written and says so" in line
+    page = out.read_text()
+    assert "Identification failed:" in page and "fig-stabilisation" in page
+    assert "Frequency response" in page and "not available in this result" in page
+
+
 def test_npz_with_a_non_numeric_sample_rate(tmp_path, capsys):
     bad = tmp_path / "bad.npz"
     np.savez(bad, u=np.zeros((1000, 1)), y=np.zeros((1000, 2)), fs=np.array("fast"), N=100)

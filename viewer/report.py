@@ -63,6 +63,22 @@ def mdi_key(result: Mapping[str, Any]) -> str:
     return key if rows and key in rows[0] else "mdi_h2"
 
 
+def failure_reason(result: Mapping[str, Any]) -> str | None:
+    """Why the result is not an identification, or None when it is one.
+
+    A result whose processed band holds no excited line (``n_excited_lines`` 0: an ident
+    config whose ``band_hz`` misses the excitation) has poles fitted to noise and an empty
+    FRF: the report says so instead of presenting them as modes.
+    """
+    if result.get("n_excited_lines") == 0:
+        band = result.get("band_hz")
+        where = (f" {float(band[0]):g}-{float(band[1]):g} Hz"
+                 if isinstance(band, (list, tuple)) and len(band) == 2 else "")
+        return (f"no excited line in the processed band{where} (fix: an ident config "
+                "band_hz that covers the excited lines)")
+    return None
+
+
 def driving_point(outputs: Sequence[str], inputs: Sequence[str], output: str | None = None) -> int:
     """Index of the output to show: ``output`` if given, else the one whose name ends the
     force's name (``F-NC2W-Z`` -> ``NC2W-Z``), else the first.
@@ -252,6 +268,8 @@ def figure_coefficients(result: Mapping[str, Any]) -> Any | None:
 
     order = frequency_order(spectra["frequency_hz"])
     f = np.asarray(spectra["frequency_hz"], dtype=float)[order]
+    if not f.size:
+        return None
     excited = np.asarray(spectra.get("excited", np.ones(f.size)), dtype=bool)[order]
     exact = exact_values(result)
     stats = {c["name"]: c for c in result.get("coefficients") or []}
@@ -298,13 +316,21 @@ def figure_frf(result: Mapping[str, Any], output: str | None = None) -> Any | No
     order = frequency_order(frf["frequency_hz"])
     f = np.asarray(frf["frequency_hz"], dtype=float)[order]
     i = driving_point(frf.get("outputs", []), frf.get("inputs", []), output)
+    curves = {}
+    for key in ("measured", "model", "underlying_linear"):
+        h = complex_array(frf[key]) if key in frf else None
+        # (lines, outputs, inputs); an identification without an excited line has none
+        if h is not None and h.ndim == 3 and h.shape[0] == f.size and h.shape[1] > i:
+            curves[key] = h[order, i, 0]
+    if not f.size or "underlying_linear" not in curves:
+        return None
     fig, (mag, ph) = _figure(9.0, 6.0, rows=2, sharex=True)
     for key, label, style in (("measured", "measured", dict(ls="none", marker=".", ms=2.5)),
                               ("model", "model", dict(lw=1.2)),
                               ("underlying_linear", "underlying linear", dict(lw=1.5))):
-        if key not in frf:
+        if key not in curves:
             continue
-        h = complex_array(frf[key])[order, i, 0]
+        h = curves[key]
         mag.plot(f, magnitude_db(h), color=FRF_STYLE[key], label=label, **style)
         ph.plot(f, phase_deg(h), color=FRF_STYLE[key], label=label, **style)
     name = (frf.get("outputs") or ["?"])[i]
@@ -335,6 +361,7 @@ h1{font-size:1.6em}h2{font-size:1.25em;border-bottom:1px solid #ccc;padding-bott
 table{border-collapse:collapse;margin:.6em 0;font-size:.9em}td,th{border:1px solid #ddd;padding:3px 8px;text-align:left}
 th{background:#f3f3f3}figure{margin:1em 0}figure svg{max-width:100%;height:auto}
 .note{color:#666;font-size:.85em}code{background:#f5f5f5;padding:0 3px}
+.failed{border:2px solid #d55e00;background:#fff3ec;padding:.6em 1em}
 """
 
 
@@ -419,9 +446,15 @@ def render_report(result: Mapping[str, Any], metadata: Mapping[str, Any] | None 
     now = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
     parts = [f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
              f"<title>{html.escape(title)}</title><style>{_CSS}</style></head><body>",
-             f"<h1>{html.escape(title)}</h1><p class='note'>generated {now} by fnsi-lab</p>",
-             "<h2>Summary</h2>", _kv_table(summary_rows(result)),
-             "<h2>Modes</h2>", _table(mode_rows(result))]
+             f"<h1>{html.escape(title)}</h1><p class='note'>generated {now} by fnsi-lab</p>"]
+    failure = failure_reason(result)
+    if failure:
+        parts.append(f"<p class='failed' id='failed'><strong>Identification failed:</strong> "
+                     f"{html.escape(failure)}. What follows was fitted to lines the "
+                     "excitation did not drive: it is shown as it came out, not as an "
+                     "identification.</p>")
+    parts += ["<h2>Summary</h2>", _kv_table(summary_rows(result)),
+              "<h2>Modes</h2>", _table(mode_rows(result))]
     warnings = result.get("warnings") or []
     if warnings:
         parts.append("<ul class='note'>" + "".join(f"<li>{html.escape(str(w))}</li>"
@@ -451,7 +484,7 @@ def render_report(result: Mapping[str, Any], metadata: Mapping[str, Any] | None 
     return "\n".join(parts)
 
 
-__all__ = ["render_report", "stabilisation_rows", "summary_rows", "mode_rows",
+__all__ = ["render_report", "failure_reason", "stabilisation_rows", "summary_rows", "mode_rows",
            "coefficient_statistics", "metadata_rows", "driving_point", "exact_values",
            "figure_stabilisation", "figure_criterion", "figure_mdi", "figure_coefficients",
            "figure_frf", "svg"]

@@ -8,6 +8,7 @@ identification it has just made.
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -140,6 +141,13 @@ def _cmd_report(args: argparse.Namespace) -> int:
                                          progress=not args.quiet)
     write_report(out, result, metadata, force=args.force, title=args.title, output=args.output)
     print(f"report written to {out} (one file, opens offline in any browser)")
+    from fnsi_lab.viewer.report import failure_reason
+
+    failure = failure_reason(result)
+    if failure:  # the page says so too; a script must not take it for a result
+        print(f"fnsi-lab report: error: {src}: identification failed: {failure}; {out} was "
+              "written and says so", file=sys.stderr)
+        return 1
     return 0
 
 
