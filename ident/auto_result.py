@@ -36,6 +36,9 @@ class AutoResult:
         model at ``mdi_order``).
     final_spread : dict
         ``{'full': rho, 'reduced': rho}`` behind that choice (NaN when not computed).
+    answer_block_rows : int or None
+        Block rows of ``full_model`` when it was re-estimated at ``mdi_order`` with the rows
+        of that order (fewer than the sweep's); None when it is the sweep's model.
     plausible_out_of_band : bool ndarray, shape (n_modes,)
         MDI modes outside the band of interest that are stable, stabilised across orders
         and detectable: reported as physical in the JSON ``poles``.
@@ -101,6 +104,7 @@ class AutoResult:
     final: str = "full"
     final_spread: dict = field(default_factory=dict)
     plausible_out_of_band: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    answer_block_rows: int | None = None
 
     @property
     def final_model(self):
@@ -193,6 +197,7 @@ class AutoResult:
             "selected_model": {"order": int(self.model.order), "poles": poles_of(self.model),
                                "coefficients": self.coefficients.get("selected")},
             "full_model": {"order": int(self.full_model.order),
+                           "block_rows": self.answer_block_rows,
                            "coefficients": self.coefficients.get("full")},
             "reduced": red,
             "timings_s": {k: float(v) for k, v in self.timings_s.items()},

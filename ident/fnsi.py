@@ -25,7 +25,8 @@ from fnsi_lab.ident.errors import IdentError
 from fnsi_lab.ident.periodic import FrequencyData, prepare_frequency_data  # noqa: F401  (re-export)
 
 __all__ = ["FrequencyData", "prepare_frequency_data", "SubspaceDecomposition", "Poles",
-           "StateSpaceModel", "subspace_decomposition", "default_block_rows", "default_output_rank",
+           "StateSpaceModel", "subspace_decomposition", "default_block_rows", "block_rows_for",
+           "default_output_rank",
            "output_directions", "state_matrices",
            "model_at_order",
            "models_for_orders", "estimate_bd", "project_outputs", "make_model", "discrete_to_continuous",
@@ -305,14 +306,28 @@ def _cov_for_svd(data: FrequencyData, weighted: bool) -> np.ndarray | None:
 
 
 # ---------------------------------------------------------------------------- subspace step
-def default_block_rows(n_outputs: int, max_order: int, n_lines: int, n_extended_inputs: int) -> int:
-    """Block rows ``i`` from ``p`` and ``n_max`` (docs/method.md §1.3 size rules, §8.2).
+#: Largest share of the data matrix's real columns ``2F`` that its ``i (m_e + p)`` rows may
+#: take when ``i`` is chosen for few outputs (the ``max(3 n_max, 120) / p`` term). The noise
+#: in the estimated observability range grows with that ratio: on the real Silverbox record
+#: (one output, 335 lines, one period per realisation, order 2) the cubic coefficient's
+#: spread over ten periods was 0.12-0.22 % up to a ratio of 0.18 and then rose steeply
+#: (0.31 % at 0.25, 0.63 % at 0.30, 0.77 % at 0.54 = the former default i = 120;
+#: docs/ident.md, "Block rows"). 0.15 keeps below that knee; records with thousands of lines
+#: (SmallSat, 2008 lines) are not affected.
+NOISE_ROWS_FRACTION = 0.15
 
-    ``i = max(ceil(n_max / p) + 1, ceil(max(3 n_max, 120) / p), 20)``: few channels need many
-    block rows (docs/method.md §8.2: 3 outputs needed i = 60), and at least 20 (docs/method.md §8.2):
-    with 39 SmallSat outputs, i = 5 made 27-39 of the 59 orders unstable and held 9 of the
-    11 modes at best, i = 20 left 8 unstable and held 10 (docs/robust.md). Capped by the QR
-    size rule ``2F >= i (m_e + p)``.
+
+def default_block_rows(n_outputs: int, max_order: int, n_lines: int, n_extended_inputs: int) -> int:
+    """Block rows ``i`` from ``p``, ``n_max`` and ``F`` (docs/ident.md, "Block rows").
+
+    ``i = max(ceil(n_max / p) + 1, min(ceil(max(3 n_max, 120) / p), c_noise), min(20, c_qr))``:
+    few channels need many block rows (docs/method.md §8.2: 3 outputs needed i = 60), but not
+    so many that the rows take more than :data:`NOISE_ROWS_FRACTION` of the ``2F`` real
+    columns (``c_noise``; short records with few lines); and at least 20 (docs/method.md
+    §8.2): with 39 SmallSat outputs, i = 5 made 27-39 of the 59 orders unstable and held 9 of
+    the 11 modes at best, i = 20 left 8 unstable and held 10 (docs/robust.md). ``c_qr``: the
+    QR size rule ``2F >= i (m_e + p)``. The observability rule ``(i - 1) p >= n_max`` always
+    wins.
 
     Parameters
     ----------
@@ -325,9 +340,29 @@ def default_block_rows(n_outputs: int, max_order: int, n_lines: int, n_extended_
     """
     p = max(int(n_outputs), 1)
     need = -(-int(max_order) // p) + 1
-    want = max(-(-max(3 * int(max_order), 120) // p), 20)
-    cap = (2 * int(n_lines)) // (int(n_extended_inputs) + p)
-    return int(max(need, min(want, cap), 2))
+    few_outputs = -(-max(3 * int(max_order), 120) // p)
+    cap_qr = (2 * int(n_lines)) // (int(n_extended_inputs) + p)
+    cap_noise = int(NOISE_ROWS_FRACTION * cap_qr)
+    return int(max(need, min(few_outputs, cap_noise), min(20, cap_qr), 2))
+
+
+def block_rows_for(data: FrequencyData, max_order: int) -> int:
+    """The default ``i`` that :func:`subspace_decomposition` uses on ``data`` up to ``max_order``.
+
+    Parameters
+    ----------
+    data : FrequencyData
+    max_order : int
+
+    Returns
+    -------
+    int
+        :func:`default_block_rows` of the (compressed, :func:`default_output_rank`) outputs.
+    """
+    p, m_e = data.n_outputs, data.n_extended_inputs
+    rank = default_output_rank(p, max_order, m_e)
+    return default_block_rows(rank if rank is not None and rank < p else p, max_order,
+                              data.n_lines, m_e)
 
 
 def default_output_rank(n_outputs: int, max_order: int, n_extended_inputs: int) -> int | None:

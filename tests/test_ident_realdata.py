@@ -166,22 +166,37 @@ def test_coefficient_does_not_depend_on_the_ct_reading():
 
 # ------------------------------------------------------------------------ whole identifications
 def test_silverbox_periods_one_mode_and_consistent_value():
+    """Each of the 10 steady periods alone: one mode, and the cubic coefficient agrees.
+
+    The issue's target is a spread <= 0.40 % for ``--auto`` and ``--order 2`` (the peer
+    implementation: 0.42 %); measured 0.23 % and 0.19 % (bench/RESULTS.md, Real data), 1.03 %
+    for --auto before the answer was re-estimated with the rows of its order.
+    """
     z = np.load(SILVERBOX / "schroeder.npz")
     N = int(z["N"])
     u = z["u"].reshape(-1, 1, N, 1)
     y = z["y"].reshape(-1, 1, N, 1)
     ref = fnsi_lab.identify({"u": u[1:, 0][None], "y": y[1:, 0][None], "fs": float(z["fs"]),
                              "N": N}, CUBIC, order=2).coefficients[0]["value"]
-    for r in (1, 7):                                         # one steady period each
-        res = fnsi_lab.identify({"u": u[r], "y": y[r], "fs": float(z["fs"]), "N": N}, CUBIC)
-        j = res.to_json()
+    values = {"auto": [], "order 2": []}
+    for r in range(1, 11):                                   # one steady period each
+        src = {"u": u[r], "y": y[r], "fs": float(z["fs"]), "N": N}
+        res = fnsi_lab.identify(src, CUBIC)
+        values["order 2"].append(fnsi_lab.identify(src, CUBIC, order=2).coefficients[0]["value"])
+        values["auto"].append(res.coefficients[0]["value"])
         assert len(res.modes) == 1 and 67.5 < res.modes[0]["frequency_hz"] < 69.0
         assert res.order <= 4
-        assert j["excitation"]["grid"] == "odd" and j["excitation"]["mains_dropped_hz"] == [50.0, 150.0]
-        assert j["noise"]["source"] == "non-excited lines"
-        assert j["offsets"]["removed"] is True
-        # per-period values scatter by 0.5-1 % around the 10-period value (bench/RESULTS.md)
-        assert res.coefficients[0]["value"] == pytest.approx(ref, rel=0.03)
+        if r == 1:
+            j = res.to_json()
+            assert j["excitation"]["grid"] == "odd"
+            assert j["excitation"]["mains_dropped_hz"] == [50.0, 150.0]
+            assert j["noise"]["source"] == "non-excited lines"
+            assert j["offsets"]["removed"] is True
+    for how, v in values.items():
+        v = np.array(v)
+        assert np.std(v, ddof=1) / np.mean(v) <= 0.004, how
+        # one period has a tenth of the data of the 10-period reference
+        assert np.mean(v) == pytest.approx(ref, rel=0.01), how
 
 
 def test_lab_duffing_auto_answers_one_mode_near_the_truth():
