@@ -26,7 +26,7 @@ from fnsi_lab.ident.periodic import FrequencyData, prepare_frequency_data  # noq
 
 __all__ = ["FrequencyData", "prepare_frequency_data", "SubspaceDecomposition", "Poles",
            "StateSpaceModel", "subspace_decomposition", "default_block_rows", "block_rows_for",
-           "default_output_rank",
+           "noise_row_limit", "default_output_rank",
            "output_directions", "state_matrices",
            "model_at_order",
            "models_for_orders", "estimate_bd", "project_outputs", "make_model", "discrete_to_continuous",
@@ -342,8 +342,25 @@ def default_block_rows(n_outputs: int, max_order: int, n_lines: int, n_extended_
     need = -(-int(max_order) // p) + 1
     few_outputs = -(-max(3 * int(max_order), 120) // p)
     cap_qr = (2 * int(n_lines)) // (int(n_extended_inputs) + p)
-    cap_noise = int(NOISE_ROWS_FRACTION * cap_qr)
-    return int(max(need, min(few_outputs, cap_noise), min(20, cap_qr), 2))
+    return int(max(need, min(few_outputs, noise_row_limit(p, n_lines, n_extended_inputs)),
+                   min(20, cap_qr), 2))
+
+
+def noise_row_limit(n_outputs: int, n_lines: int, n_extended_inputs: int) -> int:
+    """Most block rows before the noise of a short record dominates (:data:`NOISE_ROWS_FRACTION`).
+
+    Parameters
+    ----------
+    n_outputs, n_lines, n_extended_inputs : int
+        ``p`` (after compression), ``F``, ``m_e``.
+
+    Returns
+    -------
+    int
+        ``floor(NOISE_ROWS_FRACTION * floor(2F / (m_e + p)))``.
+    """
+    cap_qr = (2 * int(n_lines)) // (int(n_extended_inputs) + max(int(n_outputs), 1))
+    return int(NOISE_ROWS_FRACTION * cap_qr)
 
 
 def block_rows_for(data: FrequencyData, max_order: int) -> int:
