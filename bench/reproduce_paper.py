@@ -17,6 +17,11 @@ Figures go to ``docs/img/``; numbers to ``bench/out/reproduce_paper.json`` and (
 to the "Paper reproduction" section of ``bench/RESULTS.md``. Usage::
 
     python bench/reproduce_paper.py [--snr-db 40] [--write] [--no-figures]
+    python bench/reproduce_paper.py --quick     # 3 channels only, a check that it runs
+
+Every identification goes through :func:`fnsi_lab.identify` (the one entry point, as
+``fnsi-lab ident --config`` runs it) with the configuration of :func:`ident_config`; the
+Table-2 statistics are computed here from the models the pipeline returns.
 
 Simulated records are cached in ``bench/out/`` (``.npz``) so figures can be redrawn fast.
 matplotlib is used here only (never in ``ident``).
@@ -39,9 +44,7 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from fnsi_lab.ident import auto  # noqa: E402
-from fnsi_lab.ident.basis import Nonlinearity  # noqa: E402
-from fnsi_lab.ident.periodic import prepare_frequency_data  # noqa: E402
+import fnsi_lab  # noqa: E402
 
 OUT = ROOT / "bench" / "out"
 IMG = ROOT / "docs" / "img"
@@ -102,21 +105,36 @@ def _simulate(level_n: float, nonlinear: bool, seed: int = 1, periods: int = P_T
     return u, res.displacement, names, info
 
 
-def nc2z_basis():
-    """Trilinear NC2-Z basis (clearances known, as in the paper), relative W - B."""
+def ident_config(level: str = "100N", transient_periods: int = P_TR,
+                 time_base: str = "auto") -> dict:
+    """The ident configuration of the reproduction (what ``--config`` would hold).
+
+    Processed band 5-250 Hz, the force at NC2W-Z with its driving point, and at 100 N the
+    trilinear NC2-Z basis with known clearances (as in the paper), relative W - B; the
+    1 N (linear) run has no basis.
+    """
     from fnsi_lab.daq.sim.smallsat import DEFAULT_CLEARANCES
-    return [Nonlinearity(name="NC2-Z", kind="trilinear", channels={"NC2W-Z": 1.0, "NC2B-Z": -1.0},
-                         clearances=tuple(DEFAULT_CLEARANCES["NC2-Z"]))]
+    cfg = {"band_hz": list(PROC_BAND), "transient_periods": int(transient_periods),
+           "output_quantity": "displacement", "time_base": time_base,
+           "inputs": [{"name": "F-NC2W-Z", "driving_point": DRIVE}]}
+    if level == "100N":
+        cfg["nonlinearities"] = [{"name": "NC2-Z", "kind": "trilinear",
+                                  "channels": {"NC2W-Z": 1.0, "NC2B-Z": -1.0},
+                                  "clearances": [float(g) for g in DEFAULT_CLEARANCES["NC2-Z"]]}]
+    return cfg
 
 
-def smallsat_frequency_data(level: str = "100N", n_channels: int = 39, snr_db: float | None = None,
-                            seed: int = 1, noise_seed: int = 7, transient_periods: int = P_TR,
-                            steady_periods: int = P_TOT - P_TR, time_base: str = "auto"):
-    """FrequencyData of the simulated SmallSat and the channel names.
+def smallsat_arrays(level: str = "100N", n_channels: int = 39, snr_db: float | None = None,
+                    seed: int = 1, noise_seed: int = 7, transient_periods: int = P_TR,
+                    steady_periods: int = P_TOT - P_TR):
+    """The simulated SmallSat record as the arrays :func:`fnsi_lab.identify` reads.
 
-    ``snr_db`` adds white output noise at that SNR (per channel, relative to its RMS) to
-    every period; the ``steady_periods`` kept periods are averaged (and give the noise
-    covariance when there are two or more).
+    Returns ``(arrays, channels, info)``: ``arrays`` holds ``u``, ``y`` (every period, the
+    ``transient_periods`` first ones included: the config drops them), ``fs``, ``N``,
+    ``channels`` and ``input_channels``. ``snr_db`` adds white output noise at that SNR
+    (per channel, relative to its RMS) to every period; the ``steady_periods`` kept periods
+    are averaged by the identification (and give the noise covariance when there are two
+    or more).
     """
     lvl = 100.0 if level == "100N" else 1.0
     u, y, names, info = _simulate(lvl, nonlinear=(level == "100N"), seed=seed,
@@ -128,12 +146,33 @@ def smallsat_frequency_data(level: str = "100N", n_channels: int = 39, snr_db: f
         rng = np.random.default_rng(noise_seed)
         rms = np.sqrt(np.mean(y[P_TR * N:] ** 2, axis=0))
         y = y + rng.standard_normal(y.shape) * rms * 10 ** (-snr_db / 20)
-    basis = nc2z_basis() if level == "100N" else []
-    data = prepare_frequency_data(u=u, y=y, sample_rate_hz=FS, samples_per_period=N, basis=basis,
-                                  band_hz=PROC_BAND, transient_periods=transient_periods,
-                                  output_names=chans, input_names=("F-NC2W-Z",),
-                                  time_base=time_base)
-    return data, chans, info
+    arrays = {"u": u, "y": y, "fs": FS, "N": N, "channels": np.array(chans),
+              "input_channels": np.array(["F-NC2W-Z"])}
+    return arrays, chans, info
+
+
+def smallsat_frequency_data(level: str = "100N", n_channels: int = 39, snr_db: float | None = None,
+                            seed: int = 1, noise_seed: int = 7, transient_periods: int = P_TR,
+                            steady_periods: int = P_TOT - P_TR, time_base: str = "auto"):
+    """FrequencyData of the simulated SmallSat and the channel names, prepared exactly as
+    :func:`fnsi_lab.identify` prepares them (for data-only uses: the 1 N FRF of Fig. 11)."""
+    from fnsi_lab.api import load_config
+    from fnsi_lab.ident.io import input_from_arrays
+    from fnsi_lab.ident.pipeline import prepare_session
+    arrays, chans, info = smallsat_arrays(level, n_channels, snr_db, seed, noise_seed,
+                                          transient_periods, steady_periods)
+    cfg = load_config(ident_config(level, transient_periods, time_base))
+    session = prepare_session(input_from_arrays(arrays, "<arrays>"), cfg)
+    return session.data, chans, info
+
+
+def identify(arrays, config, **kw):
+    """:func:`fnsi_lab.identify`, the one entry point (robust pipeline over the seed's orders
+    2..60 unless ``orders``/``order`` say otherwise): the ``Identification``, whose ``.auto``
+    is the pipeline's ``AutoResult`` and ``.data`` its frequency data."""
+    if "order" not in kw:
+        kw.setdefault("orders", "2:60")
+    return fnsi_lab.identify(arrays, config, **kw)
 
 
 # ------------------------------------------------------------------------------ coefficients
@@ -170,24 +209,18 @@ def coefficient_summary(model, data, truth=None):
     return out
 
 
-def make_coefficients_callback(data):
-    return lambda model: coefficient_summary(model, data)
+def coefficient_sets(res, data):
+    """Table-2 statistics of the pipeline's selected, full (MDI-order) and reduced models
+    (``res``: the ``AutoResult``), keyed as the pipeline keys its coefficient summaries."""
+    out = {"selected": coefficient_summary(res.model, data),
+           "full": coefficient_summary(res.full_model, data)}
+    if res.reduced is not None:
+        out["reduced"] = coefficient_summary(res.reduced, data)
+    return out
 
 
-def make_spread(data):
-    """Coefficient consistency of the NC2-Z basis (the pipeline's order-selection gate)."""
-    from fnsi_lab.ident.coefficients import spread_function
-    return spread_function(data, nc2z_basis(), driving_point=DRIVE)
-
-
-def identify(data, **kw):
-    """``identify_auto`` with the default options, the coefficient callback and the gate."""
-    return auto.identify_auto(data, orders=range(2, 61), coefficients=make_coefficients_callback(data),
-                              spread=make_spread(data), **kw)
-
-
-def final_coefficients(res):
-    return res.coefficients["reduced" if res.final == "reduced" else "full"]
+def final_coefficients(res, coefs):
+    return coefs["reduced" if res.final == "reduced" else "full"]
 
 
 def physical_recovery(res):
@@ -381,20 +414,22 @@ def _coef_err(c):
     return max(abs(c["neg"]["error_pct"]), abs(c["pos"]["error_pct"]))
 
 
-def run(snr_db=None, figures=True, steady_periods=None):
-    """Every figure and number of the reproduction for one noise level."""
+def run(snr_db=None, figures=True, steady_periods=None, quick=False):
+    """Every figure and number of the reproduction for one noise level (``quick``: the
+    3-channel part only, Fig. 4-6 and Table 2)."""
     t0 = time.perf_counter()
     P = steady_periods or (1 if snr_db is None else 6)
     out: dict = {"snr_db": snr_db, "steady_periods": P}
     kw = dict(snr_db=snr_db, steady_periods=P)
-    d3, ch3, info100 = smallsat_frequency_data("100N", 3, **kw)
-    d39, ch39, _ = smallsat_frequency_data("100N", 39, **kw)
-    d39l, _, info1 = smallsat_frequency_data("1N", 39, **kw)
-    out["simulation"] = {"100N": info100, "1N": info1}
+    a3, ch3, info100 = smallsat_arrays("100N", 3, **kw)
+    out["simulation"] = {"100N": info100}
+    cfg = ident_config("100N")
     sfx = f"_snr{int(snr_db)}" if snr_db is not None else ""
 
-    # 3 channels: IC, stabilisation, Table 2
-    r3 = identify(d3)
+    # 3 channels: IC, stabilisation, Table 2 (fnsi_lab.identify, the one entry point)
+    i3 = identify(a3, cfg)
+    r3, d3 = i3.auto, i3.data
+    c3 = coefficient_sets(r3, d3)
     out["three_channels"] = {
         "channels": list(ch3), "selected_order": r3.selected_order, "ic_order": r3.ic_order,
         "seed_order": int(r3.information_criterion.orders[int(np.nanargmin(
@@ -402,8 +437,8 @@ def run(snr_db=None, figures=True, steady_periods=None):
              for e in r3.information_criterion.to_list()]))]),
         "paper_selected_order": PAPER["fig4_selected_order_3ch"],
         "ic": r3.information_criterion.to_list(), "ic_band": str(r3.information_criterion.band),
-        "coefficients_selected": r3.coefficients["selected"],
-        "coefficients_final": final_coefficients(r3), "final": r3.final,
+        "coefficients_selected": c3["selected"],
+        "coefficients_final": final_coefficients(r3, c3), "final": r3.final,
         "final_order": r3.final_model.order,
         "table2": {n: coefficient_summary(r3.models[n], d3) for n in (8, 10, 12)},
         "recovery": physical_recovery(r3),
@@ -411,13 +446,14 @@ def run(snr_db=None, figures=True, steady_periods=None):
     }
     # the FNSI core at order 10 as `fnsi-lab ident --order 10` runs it (decomposition up to
     # order 10, D estimated), with the default and the bilinear time base
-    from fnsi_lab.ident import fnsi
     val = {}
     for tb in ("band-limited", "bilinear"):
-        dtb = d3 if tb == d3.time_base else smallsat_frequency_data("100N", 3, time_base=tb, **kw)[0]
-        m10 = fnsi.model_at_order(fnsi.subspace_decomposition(dtb, max_order=10), dtb, 10)
-        val[tb] = coefficient_summary(m10, dtb)
+        i10 = identify(a3, ident_config("100N", time_base=tb), order=10)
+        val[tb] = coefficient_summary(i10.model, i10.data)
     out["three_channels"]["order10_core"] = val
+    if quick:  # the 3-channel part only (a check that the script runs)
+        out["elapsed_s"] = time.perf_counter() - t0
+        return out
     if figures:
         fig_ic(r3, IMG / f"fig4_ic_3ch{sfx}.png", "Fig. 4: information criterion, 3 channels")
         fig_stab(r3, IMG / f"fig5_stab_3ch{sfx}.png", "Fig. 5: stabilisation, 3 channels",
@@ -426,20 +462,26 @@ def run(snr_db=None, figures=True, steady_periods=None):
                    IMG / f"fig6_coeff_3ch{sfx}.png", "Fig. 6: NC2-Z coefficients, 3 channels")
 
     # 39 channels: the automatic pipeline (IC order, MDI and reduction there)
-    r39 = identify(d39)
+    a39, ch39, _ = smallsat_arrays("100N", 39, **kw)
+    d39l, _, info1 = smallsat_frequency_data("1N", 39, **kw)
+    out["simulation"]["1N"] = info1
+    i39 = identify(a39, cfg)
+    r39, d39 = i39.auto, i39.data
+    c39 = coefficient_sets(r39, d39)
     out["all_channels"] = {
         "selected_order": r39.selected_order, "ic_order": r39.ic_order,
         "paper_selected_order": PAPER["fig7_selected_order_39ch"],
         "ic": r39.information_criterion.to_list(), "ic_band": str(r39.information_criterion.band),
-        "coefficients_selected": r39.coefficients["selected"],
-        "coefficients_final": final_coefficients(r39), "final": r39.final,
+        "coefficients_selected": c39["selected"],
+        "coefficients_final": final_coefficients(r39, c39), "final": r39.final,
         "final_order": r39.final_model.order,
         "recovery": physical_recovery(r39),
         "confidence": r39.confidence, "separation_ratio": r39.separation_ratio,
         "timings_s": r39.timings_s,
     }
     # 39 channels at order 38 (the paper's): MDI H2 vs Hinf, confusion, reduction
-    r38 = identify(d39, reduce_at=38)
+    r38 = identify(a39, cfg, reduce_at=38).auto
+    c38 = coefficient_sets(r38, d39)
     md = r38.modal_dominancy
     from fnsi_lab.ident.mdi import largest_gap_threshold
     thr_inf = largest_gap_threshold(md.values["hinf"], candidates=r38.candidates)
@@ -458,8 +500,8 @@ def run(snr_db=None, figures=True, steady_periods=None):
         "oracle_separation_hinf": oracle_sep(md.values["hinf"]),
         "confusion_h2": tab_h2, "confusion_hinf": tab_inf, "poles_h2": rows_h2,
         "confidence": r38.confidence,
-        "coefficients_full": r38.coefficients["full"],
-        "coefficients_reduced": r38.coefficients.get("reduced"),
+        "coefficients_full": c38["full"],
+        "coefficients_reduced": c38.get("reduced"),
         "reduced_order": None if r38.reduced is None else r38.reduced.order,
         "final": r38.final,
         "recovery": physical_recovery(r38),
@@ -555,7 +597,8 @@ def results_markdown(res0: dict, res40: dict | None) -> str:
          "transient periods dropped, processed 5-250 Hz, trilinear NC2-Z basis with known "
          "clearances. Noise-free: one steady period, as in the paper. 40 dB: white output "
          f"noise at 40 dB SNR per channel, {p40} steady periods averaged (noise-weighted). "
-         "Default options of `identify_auto` (MDL criterion with the coefficient-consistency "
+         "Default options of the robust pipeline, run through `fnsi_lab.identify` (MDL "
+         "criterion with the coefficient-consistency "
          "gate, H2 MDI with stabilisation and detection, reduction); 'answer' is the "
          "pipeline's `final_model`. Coefficient errors: mean Re c over the excited lines "
          "against the exact 116.73 (neg) / 88.41 (pos) N/mm. Figures in `docs/img/` (`_snr40` "
@@ -658,6 +701,9 @@ def main(argv=None) -> int:
     ap.add_argument("--no-figures", action="store_true")
     ap.add_argument("--steady-periods", type=int, default=None,
                     help="steady periods averaged (default 1 noise-free, 6 with --snr-db)")
+    ap.add_argument("--quick", action="store_true",
+                    help="the 3-channel part only (Fig. 4-6, Table 2, order-10 core), no "
+                         "figures; numbers to bench/out/reproduce_paper_quick.json")
     ap.add_argument("--write", action="store_true",
                     help="only (re)write the 'Paper reproduction' section of bench/RESULTS.md "
                          "from the saved JSON of both runs")
@@ -671,8 +717,9 @@ def main(argv=None) -> int:
         replace_section(ROOT / "bench" / "RESULTS.md", "Paper reproduction", results_markdown(r0, r40))
         print("wrote bench/RESULTS.md (Paper reproduction)")
         return 0
-    res = run(snr_db=a.snr_db, figures=not a.no_figures, steady_periods=a.steady_periods)
-    sfx = "" if a.snr_db is None else f"_snr{int(a.snr_db)}"
+    res = run(snr_db=a.snr_db, figures=not (a.no_figures or a.quick),
+              steady_periods=a.steady_periods, quick=a.quick)
+    sfx = ("" if a.snr_db is None else f"_snr{int(a.snr_db)}") + ("_quick" if a.quick else "")
     path = OUT / f"reproduce_paper{sfx}.json"
     path.write_text(json.dumps(res, indent=1, default=lambda o: o.tolist()
                                if hasattr(o, "tolist") else str(o)))

@@ -1,6 +1,7 @@
 """Cost and memory of the robust pipeline against channels, realisations, periods, lines and orders.
 
-Each case runs ``fnsi_lab.ident.auto.identify_auto`` (orders 2..60 unless stated; IC,
+Each case runs :func:`fnsi_lab.identify`, the one entry point, with the packaged
+``smallsat39`` config (the robust pipeline over orders 2..60 unless stated: IC,
 stabilisation, MDI, reduction, NC2-Z coefficient gate) in a fresh subprocess, so the peak
 memory (``ru_maxrss``) is that of the whole process, and reports the time of each step
 (``subspace``, ``sweep``, ``mdi``, ``reduction``, ``total``), the NC2-Z stop stiffness error

@@ -9,9 +9,12 @@ Three calls cover the lab's jobs::
     result = fnsi_lab.identify("run.mcap", config="smallsat39")   # robust pipeline
     print(result.order, result.modes[0]["frequency_hz"], result.coefficients[0]["value"])
 
-:func:`identify` is the one entry point of an identification: the ``fnsi-lab ident``
-command, the live service, batch campaigns and the benchmarks call it (or, for arrays
-already in memory, :func:`fnsi_lab.ident.pipeline.identify_input`, which it wraps).
+:func:`identify` is the one entry point of an identification: the ``fnsi-lab ident`` and
+``fnsi-lab report`` commands, batch campaigns and the benchmarks of the whole
+identification (``bench/reproduce_paper.py``, ``bench/bench_pipeline.py``,
+``bench/scaling.py``...) call it. The live service (``fnsi-lab live/replay/run``), whose
+periods are already in memory, calls :func:`fnsi_lab.ident.pipeline.identify_input`, which
+:func:`identify` wraps: the same configuration and the same pipeline either way.
 """
 
 from __future__ import annotations
