@@ -102,14 +102,23 @@ def atomic_output(path: str | os.PathLike[str], mode: str = "w", *,
         raise
 
 
-def json_safe(obj: Any) -> Any:
-    """``obj`` with numpy scalars/arrays as Python values and NaN/inf as None (JSON null)."""
+def json_safe(obj: Any, *, unknown: str = "str") -> Any:
+    """``obj`` with numpy scalars/arrays as Python values and NaN/inf as None (JSON null).
+
+    Complex numbers become ``{"re", "im"}``, paths text, sets sorted lists and objects with
+    a ``to_dict()`` method their dictionary. ``unknown`` says what happens to anything
+    else: ``'str'`` (default) stores ``str(obj)``, ``'error'`` raises ``TypeError`` (the
+    recordings: a metadata value that is not data is a bug to report, not text to store).
+    """
+    def rec(v: Any) -> Any:
+        return json_safe(v, unknown=unknown)
+
     if isinstance(obj, dict):
-        return {str(k): json_safe(v) for k, v in obj.items()}
+        return {str(k): rec(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
-        return [json_safe(v) for v in obj]
+        return [rec(v) for v in obj]
     if isinstance(obj, np.ndarray):
-        return json_safe(obj.tolist())
+        return rec(obj.tolist())
     if isinstance(obj, (bool, np.bool_)):
         return bool(obj)
     if isinstance(obj, (int, np.integer)):
@@ -118,17 +127,38 @@ def json_safe(obj: Any) -> Any:
         x = float(obj)
         return x if math.isfinite(x) else None
     if isinstance(obj, (complex, np.complexfloating)):
-        return {"re": json_safe(obj.real), "im": json_safe(obj.imag)}
+        return {"re": rec(obj.real), "im": rec(obj.imag)}
     if obj is None or isinstance(obj, str):
         return obj
     if isinstance(obj, os.PathLike):
         return os.fspath(obj)
+    if isinstance(obj, (set, frozenset)):
+        try:
+            items = sorted(obj)
+        except TypeError:
+            items = sorted(obj, key=repr)
+        return [rec(v) for v in items]
+    to_dict = getattr(obj, "to_dict", None)
+    if callable(to_dict):
+        try:
+            d = to_dict()
+        except TypeError:  # a to_dict that needs arguments is not a plain serialisation
+            d = None
+        if isinstance(d, dict):
+            return rec(d)
+    if unknown == "error":
+        raise TypeError(f"{type(obj).__name__} is not JSON serializable")
     return str(obj)
 
 
-def dumps(obj: Any, **kw: Any) -> str:
-    """The one JSON encoder of fnsi-lab: :func:`json_safe`, then strict JSON (no NaN)."""
-    return json.dumps(json_safe(obj), allow_nan=False, **kw)
+def dumps(obj: Any, *, unknown: str = "str", **kw: Any) -> str:
+    """The one JSON encoder of fnsi-lab: :func:`json_safe`, then strict JSON (no NaN).
+
+    ``unknown`` as in :func:`json_safe`; other keywords go to :func:`json.dumps`
+    (``indent``, ``separators``...). Used for result files, campaign tables and the JSON
+    inside recordings (metadata records, events, auxiliary topics).
+    """
+    return json.dumps(json_safe(obj, unknown=unknown), allow_nan=False, **kw)
 
 
 def write_json(obj: Any, target: str | os.PathLike[str] | None, *, force: bool = True) -> None:

@@ -118,6 +118,68 @@ def test_events_aux_topics_and_late_metadata(tmp_path):
     assert info["events"] == {"error_frame": 2, "reconnect": 1}
 
 
+
+def _strict_json(text: str):
+    """Parse as strict JSON: NaN/Infinity tokens are an error (as in JavaScript, jq...)."""
+    def refuse(token):
+        raise AssertionError(f"non-standard JSON token {token} in {text[:80]!r}")
+    return json.loads(text, parse_constant=refuse)
+
+
+def test_json_inside_recordings_is_strict_and_uses_the_one_encoder(tmp_path):
+    """Metadata, events and auxiliary topics go through fnsi_lab.outputs.dumps: NaN and
+    infinities become null, numpy values plain numbers, sets sorted lists (issue 10)."""
+    from mcap.reader import make_reader
+
+    from fnsi_lab import outputs
+    from fnsi_lab.daq.recording import writer
+
+    chans = make_channels(1, 1)
+    path = tmp_path / "nan.mcap"
+    with Recorder(path, chans, 100.0,
+                  metadata={"truth": {"f": [1.0, np.nan], "g": np.float32(np.inf),
+                                      "lines": {3, 1, 2}}}) as rec:
+        rec.write_block(Block(np.zeros((10, 2), np.float32), chans, 100.0, 0, 0, 0))
+        rec.write_event(SourceEvent(time_ns=1, kind="clock", detail={"ppm": float("-inf")}))
+        rec.write_json("/aux", 2, {"x": np.array([np.nan, 1.5])})
+        rec.add_metadata("stats", {"rate": np.float64("nan")})
+        with pytest.raises(ValueError, match="not JSON-able"):
+            rec.add_metadata("bad", {"x": object()})  # not data: refused, not stored as text
+    with open(path, "rb") as f:
+        texts = {m.name: m.metadata[topics.METADATA_JSON_KEY]
+                 for m in make_reader(f).iter_metadata()}
+        f.seek(0)
+        messages = [(c.topic, m.data.decode()) for _, c, m in make_reader(f).iter_messages()
+                    if c.topic != topics.TOPIC_SAMPLES]
+    assert _strict_json(texts["fnsi_lab.truth"]) == {"f": [1.0, None], "g": None,
+                                                     "lines": [1, 2, 3]}
+    assert _strict_json(texts["fnsi_lab.stats"]) == {"rate": None}
+    assert "fnsi_lab.bad" not in texts
+    for _, text in messages:
+        _strict_json(text)
+    assert texts["fnsi_lab.truth"] == outputs.dumps({"f": [1.0, None], "g": None,
+                                                     "lines": [1, 2, 3]}, separators=(",", ":"))
+    assert not hasattr(writer, "json_default")  # no second encoder
+    with open_recording(path) as r:
+        assert r.truth == {"f": [1.0, None], "g": None, "lines": [1, 2, 3]}
+        assert list(r.iter_events())[0]["detail"] == {"ppm": None}
+        assert list(r.iter_json("/aux")) == [(2, {"x": [None, 1.5]})]
+
+
+def test_recordings_written_with_nan_tokens_still_read(tmp_path):
+    """Recordings from before the strict encoder hold NaN/Infinity tokens: still readable."""
+    p = tmp_path / "old.mcap"
+    table = json.dumps([ChannelInfo("a").to_dict(), ChannelInfo("b", "force").to_dict()])
+    old = '{"frequency_hz":[1.0,NaN],"peak":Infinity}'
+    name = topics.metadata_record_name("truth")
+    _raw_recording(p, {topics.CHANNEL_META_CHANNELS: table},
+                   {name: {topics.METADATA_JSON_KEY: old,
+                           topics.METADATA_CRC_KEY: topics.metadata_crc(name, old)}}, 2)
+    with open_recording(p) as rec:
+        assert rec.truth["frequency_hz"][0] == 1.0 and np.isnan(rec.truth["frequency_hz"][1])
+        assert rec.truth["peak"] == float("inf")
+        assert [c.name for c in rec.channels] == ["a", "b"]
+
 def test_recorder_close_twice_and_write_after_close(tmp_path):
     chans = make_channels(1, 1)
     rec = Recorder(tmp_path / "c.mcap", chans, 100.0)

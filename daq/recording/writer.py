@@ -13,7 +13,6 @@ writing call performs as soon as it returns.
 
 from __future__ import annotations
 
-import json
 import os
 import threading
 import time
@@ -29,6 +28,7 @@ from fnsi_lab.daq.channels import ChannelInfo
 from fnsi_lab.daq.recording import schema, topics
 from fnsi_lab.daq.recording.errors import (RecorderClosedError, RecordingError,
                                            RecordingWriteError)
+from fnsi_lab.outputs import dumps as _dumps
 
 _COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
                 "none": CompressionType.NONE}
@@ -52,24 +52,15 @@ def software_version() -> str:
     return __version__
 
 
-def json_default(obj: Any) -> Any:
-    """``json.dumps`` hook for numpy scalars/arrays, paths and tuples of them."""
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, (Path, os.PathLike)):
-        return os.fspath(obj)
-    if isinstance(obj, (set, frozenset)):
-        return sorted(obj)
-    if hasattr(obj, "to_dict"):
-        return obj.to_dict()
-    raise TypeError(f"{type(obj).__name__} is not JSON serializable")
-
-
 def dumps(obj: Any) -> str:
-    """Compact JSON text (NaN allowed, since Python's ``json`` reads it back)."""
-    return json.dumps(obj, default=json_default, separators=(",", ":"))
+    """JSON text of a metadata record, event or auxiliary message: the one encoder
+    (:func:`fnsi_lab.outputs.dumps`: strict JSON, NaN and infinities as null, numpy values
+    as Python ones), compact, and a ``TypeError`` for values that are not data.
+
+    Recordings written before used Python's ``NaN``/``Infinity`` tokens; the reader
+    (Python's ``json``) still reads them.
+    """
+    return _dumps(obj, unknown="error", separators=(",", ":"))
 
 
 class Recorder:
