@@ -143,6 +143,44 @@ def test_replay_follow_picks_up_a_file_being_written(tmp_path, capsys):
     assert "0 samples lost" in out
 
 
+
+def test_replay_honours_the_auto_section_of_the_ident_file(tmp_path, capsys):
+    """``fnsi-lab replay REC --ident X.yaml``: the file's ``auto:`` section (order sweep and
+    top_n) reaches the robust pipeline, as it does for ``fnsi-lab ident`` (issue 10: it was
+    silently ignored); ``--orders`` on the command line still wins over ``auto.orders``."""
+    pytest.importorskip("fnsi_lab.daq.sim.source", reason="fnsi_lab.daq.sim.source (simulated sources) missing")
+    rec = tmp_path / "lumped.mcap"
+    assert main(["acquire", "--config", "lumped.yaml", "--out", str(rec), "--quiet",
+                 "--no-info"]) == 0
+    capsys.readouterr()
+    base = ("band_hz: [3, 150]\n"
+            "inputs:\n  - {name: F-X3, driving_point: X3}\n"
+            "nonlinearities:\n"
+            "  - {name: knl, kind: polynomial, exponent: 3, channels: {X2: 1, X3: -1}}\n")
+    plain, with_auto = tmp_path / "plain.yaml", tmp_path / "auto.yaml"
+    plain.write_text(base)
+    with_auto.write_text(base + 'auto: {orders: "2:8", top_n: 1}\n')
+
+    def replay(cfg, *extra):
+        assert main(["replay", str(rec), "--ident", str(cfg), "--rrd",
+                     str(tmp_path / (cfg.stem + ".rrd")), "--force", *extra]) == 0
+        io = capsys.readouterr()
+        text = io.out + io.err
+        selected = int(text.split("selected order (IC)")[1].split()[0])
+        physical = int(text.split("physical modes")[1].split()[0])
+        return text, selected, physical
+
+    text, selected, physical = replay(plain)
+    assert "orders 2-40" in text            # the live default sweep
+    assert physical >= 2                     # the chain has three modes
+    assert selected > 8
+    text, selected, physical = replay(with_auto)
+    assert "orders 2-8" in text and "orders 2-40" not in text
+    assert selected <= 8
+    assert physical == 1                     # top_n: 1
+    text, selected, physical = replay(with_auto, "--orders", "2:6")
+    assert "orders 2-6" in text and selected <= 6 and physical == 1
+
 @pytest.mark.slow
 def test_run_is_the_readme_main_job_on_the_default_smallsat(tmp_path, capsys):
     """``fnsi-lab run`` (the README's first command): simulated SmallSat -> MCAP -> robust
