@@ -14,7 +14,7 @@ from fnsi_lab.daq.config import load_experiment
 from fnsi_lab.daq.registry import make_source
 from fnsi_lab.daq.sources.can_source import CanSource
 from fnsi_lab.daq.sources.serial_source import SerialSource
-from tests.test_can_source import no_adapter_leaks  # noqa: F401  (autouse fixture)
+from test_can_source import no_adapter_leaks  # noqa: F401  (autouse fixture)
 
 DOC = Path(__file__).resolve().parent.parent / "docs" / "hardware.md"
 
@@ -65,7 +65,7 @@ def test_can_blocks_events_and_raw_frames_to_mcap(tmp_path: Path) -> None:
     """CAN -> acquire -> Recorder -> open_recording: exact values, events, raw frames."""
     recording = pytest.importorskip("fnsi_lab.daq.recording", reason="fnsi_lab.daq.recording not built yet")
     from fnsi_lab.daq.acquisition import acquire, recording_metadata
-    from tests.test_can_source import Sender, build_frames, make_config
+    from test_can_source import Sender, build_frames, make_config
 
     channel = f"test-{uuid.uuid4().hex[:12]}"
     n = 600

@@ -18,7 +18,7 @@ from fnsi_lab.daq.config import parse_experiment
 from fnsi_lab.daq.multisine import multisine
 from fnsi_lab.daq.sources.serial_source import SerialSource
 from fnsi_lab.errors import ConfigError
-from tests.test_can_source import no_adapter_leaks  # noqa: F401  (autouse fixture)
+from test_can_source import no_adapter_leaks  # noqa: F401  (autouse fixture)
 
 FS = 1000.0
 CHANNELS = [

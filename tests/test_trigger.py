@@ -15,9 +15,9 @@ from fnsi_lab.daq.recording.reader import open_recording
 from fnsi_lab.daq.registry import make_source
 from fnsi_lab.daq.trigger import TriggeredSource, find_crossing
 from fnsi_lab.errors import ConfigError
-from tests import test_can_source as can_t
-from tests import test_serial_source as ser_t
-from tests.test_can_source import channel, no_adapter_leaks  # noqa: F401  (fixtures)
+import test_can_source as can_t
+import test_serial_source as ser_t
+from test_can_source import channel, no_adapter_leaks  # noqa: F401  (fixtures)
 
 
 def first_crossing(x: np.ndarray, level: float, slope: str) -> int:
@@ -177,3 +177,24 @@ def test_untriggered_source_ends_without_data(tmp_path: Path) -> None:
     with src:
         assert list(src) == []
     assert src.finished and src.triggered is None and time.monotonic() - t0 < 30
+
+
+def test_adapter_tests_collect_from_any_folder(tmp_path: Path) -> None:
+    """The test modules import each other by module name (pytest puts tests/ on sys.path),
+    never as the package ``tests`` (which only resolves from the repository root): pytest
+    run from another folder collects them (issue 18)."""
+    import subprocess
+    import sys
+
+    here = Path(__file__).resolve().parent
+    offenders = [p.name for p in here.glob("test_*.py")
+                 if any(line.lstrip().startswith(("from tests ", "from tests.", "import tests"))
+                        for line in p.read_text().splitlines())]
+    assert offenders == []
+    files = [str(here / f) for f in ("test_trigger.py", "test_serial_source.py",
+                                     "test_can_serial_docs.py")]
+    proc = subprocess.run([sys.executable, "-m", "pytest", "--collect-only", "-q",
+                           "-p", "no:cacheprovider", *files],
+                          cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    assert " tests collected" in proc.stdout  # exit code 0: no collection error
