@@ -20,6 +20,8 @@ from fnsi_lab.daq.multisine import multisine
 from fnsi_lab.daq.acquisition import record_experiment
 from fnsi_lab.daq.recording.reader import read_periodic
 from fnsi_lab.errors import ConfigError
+import test_can_source as can_t
+from test_can_source import channel, no_adapter_leaks  # noqa: F401  (fixtures)
 
 K = 0.01  # V/N
 
@@ -164,6 +166,94 @@ def test_excitation_file_reaches_the_recording_and_ident_input(tmp_path: Path) -
     np.testing.assert_array_equal(inp.excited_lines, drive.excited_lines)
     assert inp.transient_periods == drive.excitation.transient_periods
 
+
+
+def _rig_yaml(channel: str, excitation: str) -> str:
+    """An experiment on python-can's virtual bus (the CAN adapter of tests/test_can_source.py)."""
+    signals = "".join(f"      {ch}: {sig}\n" for ch, sig in can_t.SIGNALS.items())
+    chans = "".join(f"  - {{name: {c['name']}, quantity: {c['quantity']}, unit: {c['unit']}}}\n"
+                    for c in can_t.CHANNELS)
+    return (f"name: can-rig\nsample_rate_hz: {can_t.FS:g}\nblock_size: 100\n"
+            f"source:\n  kind: can\n  options:\n    interface: virtual\n"
+            f"    channel: {channel}\n    bitrate: 1000000\n    dbc: lab.dbc\n"
+            f"    counter: Counter\n    rate_window_s: 0.2\n    signals:\n{signals}"
+            f"{excitation}channels:\n{chans}")
+
+
+def test_excitation_file_reaches_a_can_recording_made_by_the_cli(tmp_path: Path, channel: str,
+                                                                  capsys) -> None:
+    """The lab session of docs/hardware.md on a real adapter: ``fnsi-lab excitation`` exports
+    the drive, ``fnsi-lab acquire`` records a CAN source (python-can's virtual bus) with
+    ``excitation: {file: drive.json}`` until Ctrl-C, and the recording's metadata and
+    ``fnsi-lab info`` carry the definition (lines, N, hash)."""
+    import shutil
+    import signal
+    import threading
+    import time
+
+    shutil.copy(can_t.DBC, tmp_path / "lab.dbc")
+    n_per, periods = 200, 5  # the frames' multisine has a 200-sample period (signals_for)
+    (tmp_path / "rig.yaml").write_text(_rig_yaml(channel, (
+        f"excitation:\n  kind: multisine\n  band_hz: [5, 200]\n  rms: 50.0\n"
+        f"  samples_per_period: {n_per}\n  periods: {periods}\n  transient_periods: 1\n"
+        f"  realizations: 1\n  seed: 3\n")))
+    assert main(["excitation", "--config", str(tmp_path / "rig.yaml"),
+                 "--out", str(tmp_path / "drive.npy"), "--quiet"]) == 0
+    drive = load_drive_definition(tmp_path / "drive.json")
+    (tmp_path / "session.yaml").write_text(_rig_yaml(channel, "excitation: {file: drive.json}\n"))
+
+    n = n_per * periods
+    frames, expected = can_t.build_frames(n)
+    default = signal.getsignal(signal.SIGINT)
+    failure: list[str] = []
+
+    def operator() -> None:
+        """Starts the shaker once the acquisition listens, then presses Ctrl-C."""
+        deadline = time.monotonic() + 30
+        while signal.getsignal(signal.SIGINT) is default:  # acquire installs its handler
+            if time.monotonic() > deadline:               # after opening the bus
+                failure.append("acquire never started")
+                return
+            time.sleep(0.01)
+        with can_t.Sender(channel, frames):
+            pass
+        time.sleep(1.5)  # let the last blocks reach the recorder
+        if signal.getsignal(signal.SIGINT) is not default:
+            signal.raise_signal(signal.SIGINT)
+
+    thread = threading.Thread(target=operator)
+    thread.start()
+    out = tmp_path / "run.mcap"
+    try:
+        code = main(["acquire", "--config", str(tmp_path / "session.yaml"), "--out", str(out),
+                     "--quiet", "--no-info"])
+    finally:
+        thread.join(timeout=60)
+    assert not failure and code == 130  # interrupted, the file finished cleanly
+    assert "interrupted" in capsys.readouterr().err
+
+    from fnsi_lab.daq.recording.reader import open_recording
+    with open_recording(out) as rec:
+        data = rec.read_samples()
+        meta = rec.metadata["excitation"]
+        source_kind = rec.metadata["source"]["kind"]
+    assert source_kind == "can"
+    np.testing.assert_array_equal(data, expected[:data.shape[0]].astype(np.float32))
+    assert data.shape[0] == n
+    assert meta["samples_per_period"] == n_per and meta["transient_periods"] == 1
+    assert meta["excited_lines"] == drive.excited_lines.tolist()
+    assert meta["drive"]["signal_sha256"] == drive.signal_sha256
+    assert meta["drive"]["file"]["sha256"] == drive.file["sha256"]
+    assert meta["drive"]["excited_lines"] == drive.excited_lines.tolist()
+    rec = read_periodic(out)  # what ident reads: N and lines without a guess
+    assert rec.samples_per_period == n_per and rec.n_periods == periods
+    np.testing.assert_array_equal(rec.excited_lines, drive.excited_lines)
+
+    assert main(["info", str(out)]) == 0
+    info = capsys.readouterr().out
+    assert (f"drive: drive.npy, {drive.excited_lines.size} lines, unit N, sha256 "
+            f"{drive.signal_sha256[:12]}...") in info
+    assert "clock check: drive vs acquisition" in info
 
 def test_drive_for_another_sample_rate_refused(tmp_path: Path) -> None:
     assert main(["excitation", "--out", str(tmp_path / "d.npy"), "--quiet"]) == 0
