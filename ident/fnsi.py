@@ -26,7 +26,7 @@ from fnsi_lab.ident.periodic import FrequencyData, prepare_frequency_data  # noq
 
 __all__ = ["FrequencyData", "prepare_frequency_data", "SubspaceDecomposition", "Poles",
            "StateSpaceModel", "subspace_decomposition", "default_block_rows", "block_rows_for",
-           "noise_row_limit", "default_output_rank",
+           "noise_row_limit", "default_output_rank", "merge_repeated_lines",
            "output_directions", "state_matrices",
            "model_at_order",
            "models_for_orders", "estimate_bd", "project_outputs", "make_model", "discrete_to_continuous",
@@ -455,6 +455,43 @@ def _lag_gram(z: np.ndarray, lines: np.ndarray, Wk: np.ndarray, i: int) -> np.nd
     return G.reshape(lags.size, q, q)
 
 
+def merge_repeated_lines(z: np.ndarray, lines: np.ndarray, E: np.ndarray, Y: np.ndarray):
+    """The same subspace-step data with each line's realisations folded into ``q`` columns.
+
+    Stacked realisations repeat every line ``R`` times. The subspace step only sees
+    ``sum_k Re[(xi_k xi_k^H) (x) D_k D_k^H]``, ``D_k`` (q x R) the line's ``[E_k; Y_k]``
+    columns, so any ``G_k`` with ``G_k G_k^H = D_k D_k^H`` gives the same ``L22`` (up to an
+    orthogonal factor on the right). ``G_k = R_k^H`` from the QR ``D_k^H = Q_k R_k`` is
+    exact to round-off and has ``q = m_e + p`` columns instead of ``R``: the QR of the block
+    Hankel matrices then costs ``F q`` columns instead of ``F R`` when ``R > q``.
+
+    Parameters
+    ----------
+    z : ndarray, shape (F,)
+    lines : ndarray of int, shape (F,)
+        DFT line of each row; a line repeats once per realisation.
+    E : ndarray, shape (F, m_e)
+    Y : ndarray, shape (F, p)
+
+    Returns
+    -------
+    z, E, Y : ndarrays, shapes (F', ), (F', m_e), (F', p)
+        ``F' = F_unique q`` rows when every line repeats ``R > q`` times, else the inputs.
+    """
+    m_e = E.shape[1]
+    q = m_e + Y.shape[1]
+    _, first, inv, counts = np.unique(lines, return_index=True, return_inverse=True,
+                                      return_counts=True)
+    R = int(counts[0])
+    if counts.min() != counts.max() or R <= q:
+        return z, E, Y
+    order = np.argsort(inv, kind="stable")
+    A = np.hstack([E, Y])[order].conj().reshape(first.size, R, q)     # D_k^H per line
+    Rk = np.linalg.qr(A, mode="r")                                     # (F_u, q, q)
+    X = Rk.conj().reshape(first.size * q, q)                           # rows: columns of R_k^H
+    return np.repeat(z[first], q), X[:, :m_e], X[:, m_e:]
+
+
 def _hankel_residual_gram(data_z, lines, E, Y, i: int) -> np.ndarray:
     """``L22 L22^T`` of the QR ``[E_i; Y_i] = L Q^T`` from lag sums, shape (i p, i p).
 
@@ -552,16 +589,21 @@ def subspace_decomposition(data: FrequencyData, *, max_order: int, block_rows: i
     if 2 * F < i * (m_e + p):
         raise IdentError(f"too few lines: 2F = {2 * F} < block_rows * (m_e + p) = "
                          f"{i * (m_e + p)} (widen band_hz, lower block_rows or max order)")
-    if method == "auto":  # the QR is exact to round-off; the Gram form to sqrt(eps) of S[0]
-        method = "qr" if 4.0 * F * (i * (m_e + p)) ** 2 <= _QR_MAX_FLOPS else "gram"
     t_w = time.perf_counter()
+    # stacked realisations: each line's R columns folded into m_e + p (exact)
+    z_q, E_q, Y_q = merge_repeated_lines(data.z, data.lines, data.E, Y)
+    F_q = z_q.size
+    if method == "auto":  # the QR is exact to round-off; the Gram form to sqrt(eps) of S[0]
+        method = "qr" if 4.0 * F_q * (i * (m_e + p)) ** 2 <= _QR_MAX_FLOPS else "gram"
     if method == "qr":
         r = np.arange(i)
-        xi = data.z[None, :] ** r[:, None]  # (i, F); z_k from the data's time base
-        Ei = (xi[:, None, :] * data.E.T[None]).reshape(i * m_e, F)
-        Yi = (xi[:, None, :] * Y.T[None]).reshape(i * p, F)
+        xi = z_q[None, :] ** r[:, None]  # (i, F_q); z_k from the data's time base
+        Ei = (xi[:, None, :] * E_q.T[None]).reshape(i * m_e, F_q)
+        Yi = (xi[:, None, :] * Y_q.T[None]).reshape(i * p, F_q)
         M = np.block([[Ei.real, Ei.imag], [Yi.real, Yi.imag]])  # (i(m_e+p), 2F)
         R = sla.qr(M.T, mode="r", check_finite=False)[0][:M.shape[0]]  # economic R
+        if R.shape[0] < M.shape[0]:  # fewer columns than rows after folding: rank-deficient
+            R = np.vstack([R, np.zeros((M.shape[0] - R.shape[0], M.shape[0]))])
         L22 = R[i * m_e:, i * m_e:].T  # (ip, ip); lower triangular block
         S22 = None
     else:
