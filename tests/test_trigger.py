@@ -131,6 +131,62 @@ def test_trigger_on_serial_loop_falling_slope(tmp_path: Path) -> None:
     assert [e.kind for e in src.drain_events()].count("trigger") == 1
 
 
+
+def test_trigger_on_serial_loop_recorded(tmp_path: Path) -> None:
+    """The serial trigger through record_experiment (what ``fnsi-lab acquire`` runs): the
+    MCAP starts pre_samples before the crossing and holds the ``trigger`` metadata record
+    and one ``trigger`` event, as on the CAN bus."""
+    n, quiet = 600, 150
+    lines, expected = ser_t.text_lines(n)
+    for k in range(quiet):  # the shaker is off: zero force, zero displacement
+        lines[k] = f"{k},0.000,{-0.5:.9f}\r\n".encode()
+        expected[k] = [0.0, 0.0]
+    force = expected[:, 0]
+    level = 10.0  # N, rising
+    k0 = first_crossing(force, level, "rising")
+    pre = 40
+    assert quiet <= k0 < quiet + 100
+    base = ser_t.make_config(tmp_path)
+    trigger = {"channel": "F-NC2W-Z", "level": level, "slope": "rising", "pre_samples": pre}
+    data = {"name": "serial-trigger", "sample_rate_hz": ser_t.FS, "block_size": 50,
+            "source": {"kind": "serial", "options": dict(base.source.options)},
+            "channels": ser_t.CHANNELS, "trigger": trigger}
+    config = parse_experiment(data, file=str(tmp_path / "exp.yaml"))
+    stop = threading.Event()
+    kept = n - (k0 - pre) - 100  # stop before the instrument's stream ends
+
+    def on_block(block, report) -> None:
+        if report.samples >= kept:
+            stop.set()
+
+    out = tmp_path / "trig.mcap"
+    source = make_source(config)
+    assert isinstance(source, TriggeredSource)
+    source.start()
+    # loop:// echoes what is written; the first line is dropped as possibly partial
+    source.port.write(b"tail of an earlier line\n" + b"".join(lines))
+    watchdog = threading.Timer(30.0, stop.set)  # a failing test must not hang
+    watchdog.start()
+    try:
+        report = record_experiment(config, out, stop=stop, on_block=on_block, source=source)
+    finally:
+        watchdog.cancel()
+    assert report.events >= 1 and "trigger" not in report.source_problems
+    with open_recording(out) as rec:
+        got = rec.read_samples()
+        assert rec.metadata["trigger"] == trigger
+        assert rec.metadata["source"]["kind"] == "serial"
+        events = [e for e in rec.iter_events() if e["kind"] == "trigger"]
+        blocks = list(rec.iter_blocks())
+    assert got.shape[0] >= kept
+    np.testing.assert_array_equal(
+        got, expected[k0 - pre:k0 - pre + got.shape[0]].astype(np.float32))
+    assert blocks[0].first_sample == 0
+    assert len(events) == 1
+    detail = events[0]["detail"]
+    assert detail["source_sample"] == k0 and detail["sample"] == pre
+    assert detail["value"] == force[k0]
+
 def test_trigger_on_simulation_fewer_pre_samples_than_asked(tmp_path: Path) -> None:
     data = {"name": "sim", "sample_rate_hz": 1000, "block_size": 64,
             "source": {"kind": "simulated", "options": {"model": "lumped",
