@@ -19,7 +19,8 @@ import numpy as np
 from fnsi_lab.ident.basis import Nonlinearity, coefficient_names, evaluate_basis
 from fnsi_lab.ident.errors import IdentError, IdentWarning
 from fnsi_lab.ident.excitation import ExcitationGrid, _best_grid, detect_excited_lines
-from fnsi_lab.ident.noise import mains_contaminated_lines, noise_from_nonexcited, noise_lines
+from fnsi_lab.ident.noise import (mains_contaminated_lines, noise_from_nonexcited, noise_lines,
+                                  resolution_variance)
 
 OutputQuantity = Literal["displacement", "velocity", "acceleration"]
 OUTPUT_QUANTITIES: tuple[str, ...] = ("displacement", "velocity", "acceleration")
@@ -78,7 +79,10 @@ class FrequencyData:
         ``sigma``: 1 for the forces, ``sigma_a = rms(p)/rms(h_a)`` for basis columns, so the
         physical spectrum is ``E / input_scale``.
     noise_cov : complex ndarray, shape (F, p, p), real ndarray, shape (F, p), or None
-        Covariance of ``Y`` (of the average) per line; None when ``P < 2``. Only the
+        Covariance of ``Y`` (of the average) per line; None when ``P < 2`` or when the
+        period-to-period spread of every output is below the record resolution
+        (``noise_resolved``: noise-free data, weighting by it would be weighting by
+        round-off); the variances of the outputs below it are raised to it. Only the
         variances ``(F, p)`` when the full matrices would exceed ``_FULL_COV_MAX_BYTES`` and
         the periods are too few for the weighting to invert them (``P - 1 < 2 p``): 312
         channels would otherwise hold 3 GB.
@@ -118,7 +122,13 @@ class FrequencyData:
         off-grid lines of a sparse multisine (:mod:`ident.noise`, one period), or nowhere.
     noise_var : ndarray, shape (F, p) or None
         Noise variance of ``Y`` per line and output, whatever its source (the detection
-        test and the report use it; ``noise_cov`` is what the weighting uses).
+        test and the report use it; ``noise_cov`` is what the weighting uses). Outputs
+        whose estimate is below the record resolution hold that resolution
+        (:func:`floor_noise`).
+    noise_resolved : bool ndarray, shape (p,) or None
+        Outputs whose noise estimate stands above the resolution of a 24-bit record
+        (:func:`ident.noise.resolution_variance`); None without an estimate. When none
+        does, the data are noise-free for the fit: ``noise_cov`` is None (no weighting).
     excitation : dict or None
         How the excited lines were obtained (:meth:`ident.excitation.ExcitationGrid.to_dict`).
     offsets : dict or None
@@ -149,6 +159,7 @@ class FrequencyData:
     motion: "BasisMotion | None" = None
     noise_source: str = "none"
     noise_var: np.ndarray | None = None
+    noise_resolved: np.ndarray | None = None
     excitation: dict | None = None
     offsets: dict | None = None
 
@@ -621,6 +632,10 @@ def prepare_frequency_data(record: Any = None, *, u: Any = None, y: Any = None,
                 noise = np.einsum("ki,ij->kij", noise_var, np.eye(p)).astype(complex)
     if noise_estimate == "periods" and noise is None:
         raise IdentError("noise_estimate 'periods' needs at least 2 steady-state periods")
+    noise_resolved = None
+    if noise_var is not None:  # nothing below the finest record resolves (ident.noise)
+        floor = resolution_variance(np.max(np.abs(Y4), axis=(0, 1, 2)), N)
+        noise, noise_var, noise_resolved = floor_noise(noise, noise_var, floor)
     lines = np.tile(K, R)
     if time_base == "auto":
         time_base = "band-limited" if output_quantity == "displacement" else "bilinear"
@@ -643,11 +658,57 @@ def prepare_frequency_data(record: Any = None, *, u: Any = None, y: Any = None,
         output_names=output_names, input_names=input_names, excited=excited,
         output_quantity=output_quantity, n_periods=P, n_realizations=R,
         band_hz=(f_min, f_max), steady_state_error=ss_err, motion=motion,
-        noise_source=noise_source, noise_var=noise_var,
+        noise_source=noise_source, noise_var=noise_var, noise_resolved=noise_resolved,
         excitation=dict(grid.to_dict(fs, N), mains_dropped_hz=hum_hz,
                         n_mains_dropped_lines=int(hum_lines.size)),
         offsets=offsets)
     return with_basis(data, basis) if basis else data
+
+
+def floor_noise(noise: np.ndarray | None, noise_var: np.ndarray, floor: np.ndarray):
+    """Noise estimates held at the record resolution; None to weight with if nothing is above.
+
+    Parameters
+    ----------
+    noise : complex ndarray, shape (F, p, p), real ndarray, shape (F, p), or None
+        The covariance the fit would be weighted with.
+    noise_var : ndarray, shape (F, p)
+        The variances (the same estimate, or the off-grid lines' one).
+    floor : ndarray, shape (p,)
+        :func:`ident.noise.resolution_variance` of each output.
+
+    Returns
+    -------
+    noise : same as ``noise``, or None
+        Unchanged on the outputs whose mean variance over the lines is above their floor;
+        on the others the variances are raised to the floor (per line). None when no output
+        is above it: the estimate then measured no noise, only the residue of noise-free
+        data (round-off, residual transient), and weighting by its inverse weighted the
+        channels and lines at random: the simulated SmallSat with 2-8 noise-free periods
+        lost 2 of 10 modes and its NC2-Z stiffness moved from -0.001 % to +0.09 %
+        (bench/RESULTS.md, Scaling). Weighting with the floor alone would not be neutral
+        either (the weighted SVD whitens through ``C_Y``): with it the same data gave
+        7 modes and -0.06 %.
+    noise_var : ndarray, shape (F, p)
+        Raised to the floor on the unresolved outputs.
+    resolved : bool ndarray, shape (p,)
+    """
+    floor = np.asarray(floor, float)
+    resolved = np.mean(noise_var, axis=0) > floor
+    if resolved.all():
+        return noise, noise_var, resolved
+    low = ~resolved
+    noise_var = np.array(noise_var, float)  # never the caller's array
+    noise_var[:, low] = np.maximum(noise_var[:, low], floor[low])
+    if noise is None or not resolved.any():
+        return None, noise_var, resolved
+    noise = np.array(noise)
+    if noise.ndim == 2:
+        noise[:, low] = noise_var[:, low]
+    else:
+        idx = np.flatnonzero(low)
+        noise[:, idx, idx] = noise_var[:, idx]
+    return noise, noise_var, resolved
 
 
 def _is_odd(nl: Nonlinearity) -> bool:
@@ -828,6 +889,16 @@ def data_report(data: FrequencyData) -> dict:
             + ("" if src == "periods" else
                " (off-grid lines: noise, hum and even-order distortion; the unmodelled odd "
                "distortion on the excited lines is not in it)"))
+        low = (None if data.noise_resolved is None
+               else [n for n, ok in zip(data.output_names, data.noise_resolved) if not ok])
+        if low:
+            noise["below_resolution"] = low
+            noise["statement"] += (
+                "; no fit weighting: the spread of every output is below the resolution of a "
+                "24-bit record (noise-free data, e.g. a simulation), so the levels shown are "
+                "that resolution" if len(low) == len(data.output_names) else
+                f"; {len(low)} of {len(data.output_names)} outputs are below the resolution "
+                "of a 24-bit record and are weighted at that resolution")
     else:
         noise["outputs"] = None
         noise["statement"] = (

@@ -247,6 +247,11 @@ def prepare_session(inp: IdentInput, cfg: IdentConfig, *, search_order: int | No
             integration_min_snr=cfg.integration_min_snr or None)
     weighted = cfg.weighting != "none"
     if cfg.weighting == "noise" and data.noise_cov is None:
+        if data.n_periods >= 2:  # ident.periodic.floor_noise: the spread is no noise
+            raise IdentError(
+                "weighting: noise has nothing to weight with: the period-to-period spread of "
+                "every output is below the resolution of a 24-bit record (noise-free data, "
+                "e.g. a simulation); use auto or none")
         raise IdentError("weighting: noise needs at least 2 steady-state periods (use auto or none)")
     timings = {"prepare": time.perf_counter() - t0}
     search = None
