@@ -265,8 +265,10 @@ def test_drive_for_another_sample_rate_refused(tmp_path: Path) -> None:
     assert "excitation.file" in str(err.value)
 
 
-def test_lab_session_yaml_of_the_docs_loads(tmp_path: Path) -> None:
-    """docs/hardware.md's lab_session.yaml: drive definition + trigger on a CAN source."""
+def test_lab_session_yaml_of_the_docs_loads(tmp_path: Path, monkeypatch, capsys) -> None:
+    """docs/hardware.md's lab session: rig.yaml (a CAN rig with its multisine) exports the
+    drive exactly as the walkthrough prints, and lab_session.yaml (drive definition +
+    trigger on the same CAN source) loads with the rig's multisine."""
     import re
 
     from fnsi_lab.daq.registry import make_source
@@ -274,15 +276,32 @@ def test_lab_session_yaml_of_the_docs_loads(tmp_path: Path) -> None:
     from fnsi_lab.daq.trigger import TriggeredSource
 
     doc = (Path(__file__).resolve().parent.parent / "docs" / "hardware.md").read_text("utf-8")
-    blocks = [b for b in re.findall(r"```yaml\n(.*?)```", doc, re.S)
-              if b.startswith("# lab_session.yaml")]
-    assert len(blocks) == 1
-    assert main(["excitation", "--out", str(tmp_path / "drive.wav"),
-                 "--volts-per-newton", "0.01", "--quiet"]) == 0
-    (tmp_path / "lab_session.yaml").write_text(blocks[0], encoding="utf-8")
-    config = load_experiment(tmp_path / "lab_session.yaml")
+
+    def yaml_block(first_line: str) -> str:
+        blocks = [b for b in re.findall(r"```yaml\n(.*?)```", doc, re.S)
+                  if b.startswith(first_line)]
+        assert len(blocks) == 1, first_line
+        return blocks[0]
+
+    monkeypatch.chdir(tmp_path)  # the walkthrough's relative file names
+    Path("rig.yaml").write_text(yaml_block("# rig.yaml"), encoding="utf-8")
+    Path("lab_session.yaml").write_text(yaml_block("# lab_session.yaml"), encoding="utf-8")
+    rig = load_experiment("rig.yaml")
+    assert rig.source.kind == "can" and rig.excitation.drive is None
+    # step 1 as written: the command and the lines it prints
+    sh = [b for b in re.findall(r"```sh\n(.*?)```", doc, re.S)
+          if b.startswith("fnsi-lab excitation --config rig.yaml")]
+    assert len(sh) == 1
+    command, *shown = sh[0].strip().splitlines()
+    capsys.readouterr()
+    assert main(command.split()[1:]) == 0
+    printed = [line.strip() for line in capsys.readouterr().out.strip().splitlines()]
+    assert printed == [line.removeprefix("#").strip() for line in shown]
+    config = load_experiment("lab_session.yaml")
     assert config.excitation.drive.unit == "V"
+    assert config.excitation == rig.excitation  # the definition is the rig's multisine
     assert config.excitation.to_dict()["excited_lines"][0] == 41  # 5.005 Hz at N = 8192
+    assert {k: v for k, v in config.source.options.items()} == dict(rig.source.options)
     src = make_source(config)
     assert isinstance(src, TriggeredSource) and isinstance(src.inner, CanSource)
     assert src.describe()["trigger"]["pre_samples"] == 1000
