@@ -104,3 +104,12 @@ def test_result_json_spectra_layout_as_documented():
         for part in ("re", "im"):
             arr = np.array(frf[k][part], dtype=float)
             assert arr.shape == (f_e, 1, 1), (k, part, arr.shape)
+
+
+def test_docs_stand_alone():
+    """The docs cite only the repository's own files (and public web pages), never a path
+    of the machine they were written on."""
+    for path in DOCS:
+        text = path.read_text(encoding="utf-8")
+        for bad in ("/work/", "/home/", "/tmp/"):
+            assert bad not in text, f"{path.relative_to(ROOT)} cites {bad}..."
