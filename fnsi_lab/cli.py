@@ -106,7 +106,15 @@ def _terminate(signum: int, frame: object) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the console script; returns the exit status."""
+    """Entry point of the console script; returns the exit status.
+
+    ``argv`` None (the process's own command line): the objects left when the command
+    returns are frozen out of the garbage collector, since the interpreter's exit would
+    otherwise traverse them all again (0.45-0.75 s measured once numba has loaded a
+    kernel; the operating system frees the memory anyway). Tests that call
+    ``main([...])`` keep their collector as it is.
+    """
+    process = argv is None
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser(_requested_command(argv))
     args = parser.parse_args(argv)
@@ -114,6 +122,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if handler is None:
         parser.print_help()
         return 0
+    args.whole_process = process  # handlers may tune process-wide settings (daq.cli)
     crc_check = None
     if getattr(args, "no_crc_check", False):  # for this command only (main may run in-process)
         from fnsi_lab.daq.recording import reader as crc_check
@@ -140,6 +149,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             signal.signal(signal.SIGTERM, previous)
         if crc_check is not None:
             crc_check.set_default_crc_check(True)
+        if process:
+            import gc
+            gc.freeze()
 
 
 def threading_main() -> bool:

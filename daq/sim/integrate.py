@@ -39,13 +39,13 @@ internal step ``h``; kinks at contact onsets) and from the padding (decay to < 1
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass, field
 from typing import Literal, Sequence
 
 import warnings
 
 import numpy as np
-import scipy.fft as sfft
 import scipy.linalg as sla
 from numba import njit
 
@@ -418,6 +418,26 @@ def antialias_gain(frequency_hz: np.ndarray, sample_rate_hz: float,
     return g
 
 
+def _next_fast_len(n: int) -> int:
+    """Smallest 5-smooth number (2^a 3^b 5^c) >= ``n``: a fast real FFT length.
+
+    The same as ``scipy.fft.next_fast_len(n, real=True)``; numpy's FFT (the same pocketfft,
+    bit for bit on these lengths) is used here because importing ``scipy.fft`` (and with it
+    ``scipy.special``) costs ~0.1 s of every ``fnsi-lab acquire``.
+    """
+    n = max(int(n), 1)
+    best = 1 << (n - 1).bit_length()
+    p5 = 1
+    while p5 < best:
+        p35 = p5
+        while p35 < best:
+            p2 = 1 << (-(-n // p35) - 1).bit_length()
+            best = min(best, p2 * p35)
+            p35 *= 3
+        p5 *= 5
+    return best
+
+
 def _sinc2(f_hz: np.ndarray, h: float) -> np.ndarray:
     """Fourier transform of the FOH (triangle) interpolation kernel, divided by h."""
     return np.sinc(f_hz * h) ** 2
@@ -747,7 +767,7 @@ def _outputs(model: StructuralModel, prep: _Prepared, fs: float, os_: int, n_sam
         cols += [u_fine[:, j] for j in range(u_fine.shape[1])]
         bstate += [prep.bu_state[:, j] for j in range(u_fine.shape[1])]
     pad = _decay_samples(model, fs * os_)
-    n_out_total = sfft.next_fast_len(-(-(n_fine + 1 + pad) // os_), real=True)
+    n_out_total = _next_fast_len(-(-(n_fine + 1 + pad) // os_))
     length = n_out_total * os_  # internal samples of the padded window
     n_lines = n_out_total // 2 + 1
     f_hz = np.arange(n_lines) / (length * h)
@@ -761,7 +781,7 @@ def _outputs(model: StructuralModel, prep: _Prepared, fs: float, os_: int, n_sam
     # modal spectra Z(w) = B U(w) / (jw - lambda), all 2n modes, lines below fs/2; the
     # FOH input's transform is h sinc^2(f h) times the DFT of its samples
     u = np.stack(cols, axis=0)  # (n_u, n_steps + 1), FFT along contiguous rows
-    u_spec = sfft.rfft(u, n=length, axis=1)[:, :n_lines] * (h * _sinc2(f_hz, h))[None, :]
+    u_spec = np.fft.rfft(u, n=length, axis=1)[:, :n_lines] * (h * _sinc2(f_hz, h))[None, :]
     bmod = vinv @ np.stack(bstate, axis=1)  # (2n, n_u)
     zt = (bmod @ u_spec) / (jw[None, :] - lam_all[:, None])  # (2n, n_lines)
     gain = antialias_gain(f_hz, fs, passband)
@@ -777,7 +797,7 @@ def _outputs(model: StructuralModel, prep: _Prepared, fs: float, os_: int, n_sam
         else:
             raise ValueError(f"unknown quantity {qn!r}")
         spec *= gain[None, :] * (n_out_total / t_len)
-        y = sfft.irfft(spec, n=n_out_total, axis=1)
+        y = np.fft.irfft(spec, n=n_out_total, axis=1)
         out[qn] = np.ascontiguousarray(y[:, :n_samples].T)
     return out
 
@@ -883,3 +903,42 @@ def lowpass_decimate_periodic(x_fine: np.ndarray, oversample: int, sample_rate_h
     f = np.arange(spec.shape[0]) * sample_rate_hz / n_out
     spec *= antialias_gain(f, sample_rate_hz, passband)[:, None]
     return np.fft.irfft(spec, n=n_out, axis=0) / oversample
+
+
+# ---------------------------------------------------------------------------- start-up
+_LOADER: "threading.Thread | None" = None
+_LOADER_LOCK = threading.Lock()
+
+
+def load_kernel_async() -> "threading.Thread":
+    """Load the compiled kernel in a background thread (once per process) and return it.
+
+    The first call of a numba function loads its machine code from the on-disk cache and
+    initialises numba's typing and target registries: ~0.4 s of CPU, nearly all of it
+    holding the GIL, that would otherwise start only when the first realization reaches
+    :func:`simulate`. Started as soon as a nonlinear model exists, it overlaps with what
+    releases the GIL meanwhile (the model's eigenproblems, the periodic state, the truth
+    FRF); a :func:`simulate` that arrives earlier waits for it on numba's compiler lock.
+    Any problem is left for that :func:`simulate` call to report.
+    """
+    global _LOADER
+    with _LOADER_LOCK:
+        if _LOADER is None:
+            # not a daemon: an exit during the load waits for it (~0.3 s) rather than
+            # tearing the interpreter down under LLVM
+            _LOADER = threading.Thread(target=_load_kernel, name="fnsi-lab-sim-load",
+                                       daemon=False)
+            _LOADER.start()
+        return _LOADER
+
+
+def _load_kernel() -> None:
+    """A tiny periodic run of a 3-DOF chain with a cubic spring: the same argument types
+    as every :func:`simulate` call, so the real runs find the kernel loaded."""
+    from fnsi_lab.daq.sim.lumped import lumped_model
+
+    try:
+        simulate(lumped_model("cubic"), np.array([[1.0], [0.0], [-1.0], [0.0]]), 1000.0,
+                 oversample=2, periodic=4, quantities=("displacement",))
+    except Exception:  # noqa: BLE001 - the real run raises it where it can be reported
+        pass

@@ -51,7 +51,8 @@ from fnsi_lab.daq.block import Block
 from fnsi_lab.daq.channels import ChannelInfo
 from fnsi_lab.daq.config import ExperimentConfig, ExcitationConfig
 from fnsi_lab.daq.multisine import Multisine, multisine
-from fnsi_lab.daq.sim.integrate import SimulationResult, antialias_gain, simulate
+from fnsi_lab.daq.sim.integrate import (SimulationResult, antialias_gain, load_kernel_async,
+                                         simulate)
 from fnsi_lab.daq.sim.model import StructuralModel
 from fnsi_lab.daq.sim.nonlinear import ELEMENT_KINDS, NonlinearElement
 from fnsi_lab.daq.source import Source
@@ -296,12 +297,14 @@ class SimulatedSource(Source):
     Notes
     -----
     Once started, a background thread simulates the realizations in order, one ahead of
-    the reader (bounded memory), then the truth FRF; a second thread runs the integration
-    check at twice the internal rate (``verify``) meanwhile: a paced source streams from the moment realization 0
-    is computed instead of after the whole experiment, and an unpaced one overlaps the
-    simulation with the recording. Blocks carry ``first_sample`` counted within the
-    realization and the realization index. Columns: force channel(s) first (quantity
-    ``force``), then the responses.
+    the reader (bounded memory); a second thread computes the truth FRF and then runs the
+    integration check at twice the internal rate (``verify``) meanwhile (paced: after
+    realization 0 is handed over). A nonlinear model's compiled kernel starts loading in a
+    third thread when the source is built (:func:`~daq.sim.integrate.load_kernel_async`).
+    A paced source streams from the moment realization 0 is computed instead of after the
+    whole experiment, and an unpaced one overlaps the simulation with the recording.
+    Blocks carry ``first_sample`` counted within the realization and the realization
+    index. Columns: force channel(s) first (quantity ``force``), then the responses.
     """
 
     kind = "simulated"
@@ -356,6 +359,8 @@ class SimulatedSource(Source):
         self._check_error: BaseException | None = None
         self._first_ready = threading.Event()  # realization 0 handed to the reader
         self._frf_attachment: list[tuple[str, str, bytes]] | None = None
+        if model.nonlinearities:  # the compiled kernel loads while the rest is set up
+            load_kernel_async()
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -479,6 +484,9 @@ class SimulatedSource(Source):
                     pass
                 if self._halt.is_set():
                     return
+            # the truth FRF first: its solves release the GIL while the kernel loads and
+            # realization 0 runs, instead of delaying the end of the recording
+            self._frf_attachment = self.truth_attachments()
             self.verify_integration()
         except BaseException as exc:  # noqa: BLE001 - re-raised by describe_at_end
             self._check_error = exc
@@ -487,7 +495,8 @@ class SimulatedSource(Source):
         self._halt.set()
 
     def _produce(self) -> None:
-        """Thread: realizations in order, then the integration check and the truth FRF."""
+        """Thread: the realizations in order (the truth FRF and the integration check run
+        on the other thread, :meth:`_check`)."""
         try:
             for r in range(self._realization, self.excitation.realizations):
                 with self._lock_sim:
@@ -504,8 +513,6 @@ class SimulatedSource(Source):
                         continue
                 if self._halt.is_set():
                     return
-            # the truth FRF here, while the other thread runs the 2x-rate check
-            self._frf_attachment = self.truth_attachments()
         except BaseException as exc:  # noqa: BLE001 - handed to the reader, raised there
             while not self._halt.is_set():
                 try:
