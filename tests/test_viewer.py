@@ -11,7 +11,7 @@ from fnsi_lab.cli import main
 from fnsi_lab.viewer import log as vlog
 from fnsi_lab.viewer import paths
 from fnsi_lab.viewer.blueprint import blueprint
-from fnsi_lab.viewer.cli import rrd_entities, rrd_text
+from fnsi_lab.viewer.cli import rrd_entities, rrd_text, signal_groups
 
 
 def read_rrd(path) -> dict[str, list]:
@@ -187,6 +187,21 @@ def test_view_command_lists_entities_and_prints_the_summary(rec_path, capsys):
     out = capsys.readouterr().out
     assert paths.ORDER_CRITERION in out and "| selected order | 26 |" in out
     assert main(["view", str(path.parent / "nope.rrd")]) == 2
+
+
+def test_view_serves_a_file_with_the_signal_views_of_its_groups(rec_path):
+    """``view --serve-web``/``--connect`` build the blueprint from the file's own groups."""
+    rec, path = rec_path
+    names = ["F", "a1", "a2"]
+    groups = vlog.channel_groups(names, ["force", "acceleration", "acceleration"])
+    vlog.log_signal_styles(rec, groups, names)
+    vlog.log_signals(rec, np.zeros((10, 3)), 0.0, 100.0, groups)
+    vlog.log_information_criterion(rec, [2, 4], [1.0, 0.5], 4)
+    _finish(rec)
+    assert signal_groups(rrd_entities(path)) == ("force", "acceleration")
+    assert signal_groups(["/signals/velocity", "/signals/force", "/signals/acceleration",
+                          "/ident/order/criterion"]) == ("force", "acceleration", "velocity")
+    assert signal_groups([paths.ORDER_CRITERION]) == ("force", "displacement")
 
 
 @pytest.mark.parametrize("command", ["view", "replay", "live", "report"])

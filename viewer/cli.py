@@ -287,6 +287,25 @@ def rrd_entities(path: str | Path) -> dict[str, int]:
     return counts
 
 
+def signal_groups(entities: Any) -> tuple[str, ...]:
+    """The channel groups of a recording, from its ``/signals/<group>`` entity paths.
+
+    In the order ``live``/``replay`` give them to the blueprint (force first, then by name),
+    so ``view --serve-web``/``--connect`` shows one signal view per group of the file (an
+    accelerometer run has a ``signals: acceleration`` view, not an empty displacement one).
+    Without signals, the default groups of :func:`viewer.blueprint.blueprint`.
+    """
+    from fnsi_lab.viewer import paths
+
+    prefix = paths.SIGNALS + "/"
+    found = {str(e)[len(prefix):] for e in entities
+             if str(e).startswith(prefix) and "/" not in str(e)[len(prefix):]}
+    found.discard("")
+    if not found:
+        return ("force", "displacement")
+    return tuple(sorted(found, key=lambda q: (q != "force", q)))
+
+
 def rrd_text(path: str | Path, entity: str) -> str | None:
     """The last TextDocument text logged at ``entity`` in an .rrd file, if any."""
     from rerun.chunk import RrdReader
@@ -335,7 +354,7 @@ def _cmd_view(args: argparse.Namespace) -> int:
         from fnsi_lab.viewer.blueprint import blueprint
 
         args.rrd = None
-        rec, sinks = open_stream(args, blueprint())
+        rec, sinks = open_stream(args, blueprint(signal_groups(counts)))
         rr.send_chunks(RrdReader(str(args.file)).stream().collect(), recording=rec)
         for note in sinks.notes:
             print(note, file=sys.stderr)
@@ -371,4 +390,4 @@ def register(subparsers: Any) -> None:
 
 
 __all__ = ["add_viewer_arguments", "open_stream", "close_stream", "ViewerSinks", "ViewerError",
-           "has_display", "rrd_entities", "rrd_text", "register", "APP_ID"]
+           "has_display", "rrd_entities", "rrd_text", "signal_groups", "register", "APP_ID"]
