@@ -3,8 +3,13 @@
 The time panel stays on ``acq_time`` (what the blueprint selects; Rerun has one global
 timeline). For each tab the test selects it (a new blueprint with ``active_tab``, as a click
 would) and checks the pixels of the tab's plot areas: the series colours of the data must
-cover a real area there, not only a legend entry. Run live (logging into a served stream)
-and from a saved ``.rrd`` (read back and served).
+cover a real area there, not only a legend entry. Two sources:
+
+- the README's main command, ``fnsi-lab run --out smallsat.mcap --rrd smallsat.rrd`` (the
+  simulated SmallSat, one identification update), run as a user runs it; its ``.rrd`` is read
+  back and served as ``fnsi-lab view smallsat.rrd --serve-web`` serves it;
+- content logged through the real ``viewer.log`` functions into a served stream while the
+  viewer is connected (live streaming).
 
 Needs the Debian ``chromium`` package (``/usr/bin/chromium``), ``playwright`` (its driver
 only) and Pillow; skipped, with the reason, when one is missing.
@@ -16,7 +21,11 @@ import io
 import os
 import shutil
 import socket
+import subprocess
+import sys
 import time
+from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 import pytest
@@ -24,6 +33,7 @@ import rerun as rr
 
 from fnsi_lab.viewer import log as vlog
 from fnsi_lab.viewer.blueprint import blueprint
+from fnsi_lab.viewer.cli import APP_ID, rrd_entities, signal_groups
 
 CHROMIUM = os.environ.get("FNSI_LAB_CHROMIUM", "/usr/bin/chromium")
 FLAGS = ["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
@@ -98,9 +108,10 @@ def log_example(rec: rr.RecordingStream) -> None:
     vlog.log_status(rec, 3.0, {"updates": 1, "latency_s": 0.4}, "update 1")
 
 
-#: tab -> [(region name, (x0, y0, x1, y1) as fractions of the views' area, colour, pixels)]:
-#: each region must hold at least ``pixels`` pixels of ``colour`` (legend entries are a few
-#: dozen pixels at most, so the thresholds need the data drawn).
+#: What ``log_example`` draws, tab -> [(region name, (x0, y0, x1, y1) as fractions of the
+#: views' area, colour, pixels)]: each region must hold at least ``pixels`` pixels of
+#: ``colour`` (legend entries are a few dozen pixels at most, so the thresholds need the data
+#: drawn).
 CHECKS = {
     0: [("force signal", (0.0, 0.0, 0.55, 0.45), vlog.SIGNAL_PALETTE[0], 1500),
         ("displacement signals", (0.0, 0.5, 0.55, 1.0), vlog.SIGNAL_PALETTE[1], 1500),
@@ -115,6 +126,41 @@ CHECKS = {
 }
 
 
+#: Series colours of the per-update views (one per mode or status quantity; the palette's
+#: grey is left out: the anti-aliased edge of the time cursor line is grey too).
+_UPDATE_COLOURS = tuple(c for c in vlog.SIGNAL_PALETTE if len(set(c)) > 1)
+
+#: What the README's main command draws (simulated SmallSat: 1 force and 39 displacement
+#: channels, one update, 417 poles, 9 physical modes, two coefficients NC2-Z:neg and
+#: NC2-Z:pos), tab -> [(region, box, colours, pixels)]. Boxes are fractions of the views'
+#: area and stop short of the legends (written right of each figure; at the left of the
+#: per-update views), so a legend alone counts 0: with every data series removed from the
+#: .rrd (axes, legends, summary kept) each region below held 0 pixels of its colours, while
+#: a legend entry outside them holds 21-106. Counts of the run on 2026-11-25 (threshold):
+#: force 12555 (1500) and displacement 7032 (1500): the signal curves over 20 s;
+#: per-update markers (one update, drawn at the cursor, the extremes half clipped by the
+#: view's autoscale): natural frequencies 179 (60: one whole marker is ~60 px), status
+#: 168-175 (60), coefficients 26 (12: half a marker; the other is under the cursor's head);
+#: stabilisation 3791 (400: a pole is ~10 px, 363 are fully stable), information criterion
+#: 1204 (300), FRF model 5617 (400) and underlying linear 2309 (400), MDI of the 9 physical
+#: poles 195 (60: a pole is ~20 px), coefficient spectra 721 and 826 (300 each: a curve).
+MAIN_CHECKS = {
+    0: [("force signal", (0.0, 0.0, 0.55, 0.45), vlog.SIGNAL_PALETTE[0], 1500),
+        ("displacement signals", (0.0, 0.5, 0.55, 1.0), vlog.SIGNAL_PALETTE[1], 1500),
+        ("natural frequencies of the update", (0.75, 0.0, 1.0, 0.18), _UPDATE_COLOURS, 60),
+        ("coefficients of the update", (0.75, 0.2, 1.0, 0.36), vlog.COEFFICIENT_PALETTE[:2],
+         12),
+        ("status of the update", (0.75, 0.42, 1.0, 0.58), _UPDATE_COLOURS, 60)],
+    1: [("stabilisation diagram", (0.0, 0.0, 0.49, 1.0), vlog.POLE_STYLE["stable"][0], 400),
+        ("information criterion", (0.6, 0.0, 0.92, 1.0), (0, 114, 178), 300)],
+    2: [("FRF model", (0.0, 0.0, 0.40, 1.0), vlog.FRF_STYLE["model"][0], 400),
+        ("FRF underlying linear", (0.0, 0.0, 0.40, 1.0), vlog.FRF_STYLE["linear"][0], 400),
+        ("MDI of the physical poles", (0.52, 0.0, 0.905, 0.48), (0, 158, 115), 60),
+        ("coefficient NC2-Z:neg", (0.52, 0.52, 0.87, 1.0), vlog.COEFFICIENT_PALETTE[0], 300),
+        ("coefficient NC2-Z:pos", (0.52, 0.52, 0.87, 1.0), vlog.COEFFICIENT_PALETTE[1], 300)],
+}
+
+
 def _pixels(png: bytes) -> np.ndarray:
     from PIL import Image
 
@@ -122,18 +168,26 @@ def _pixels(png: bytes) -> np.ndarray:
 
 
 def colour_count(px: np.ndarray, box: tuple[float, float, float, float],
-                 colour: tuple[int, int, int], tol: int = 45) -> int:
-    """Pixels of ``colour`` (L1 distance <= tol) in a fractional box of the views' area."""
+                 colour: tuple[int, int, int] | Sequence[tuple[int, int, int]],
+                 tol: int = 45) -> int:
+    """Pixels of ``colour`` (L1 distance <= tol) in a fractional box of the views' area.
+
+    ``colour`` is one RGB triple or a sequence of them (a pixel near any of them counts once).
+    """
     h, w = BOTTOM - TOP, px.shape[1] - LEFT
     x0, y0, x1, y1 = box
     region = px[TOP + int(y0 * h):TOP + int(y1 * h), LEFT + int(x0 * w):LEFT + int(x1 * w)]
-    return int(np.sum(np.abs(region - np.array(colour)).sum(axis=-1) <= tol))
+    colours = np.array(colour, dtype=np.int16).reshape(-1, 3)
+    near = np.zeros(region.shape[:2], dtype=bool)
+    for c in colours:
+        near |= np.abs(region - c).sum(axis=-1) <= tol
+    return int(near.sum())
 
 
-def _failures(png: bytes, tab: int) -> list[str]:
+def _failures(png: bytes, checks: Sequence[tuple]) -> list[str]:
     px = _pixels(png)
     out = []
-    for name, box, colour, need in CHECKS[tab]:
+    for name, box, colour, need in checks:
         got = colour_count(px, box, colour)
         if got < need:
             out.append(f"{name}: {got} pixels of {colour} < {need}")
@@ -141,54 +195,102 @@ def _failures(png: bytes, tab: int) -> list[str]:
 
 
 # ---------------------------------------------------------------------------- test
-def _serve(rec: rr.RecordingStream) -> tuple[str, int]:
+def _serve(rec: rr.RecordingStream, groups: Sequence[str] = GROUPS) -> tuple[str, int]:
     grpc_port, web_port = _free_port(), _free_port()
-    url = rec.serve_grpc(grpc_port=grpc_port, default_blueprint=blueprint(GROUPS))
+    url = rec.serve_grpc(grpc_port=grpc_port, default_blueprint=blueprint(groups))
     rr.serve_web_viewer(web_port=web_port, open_browser=False, connect_to=url)
     return url, web_port
 
 
-@pytest.mark.parametrize("source", ["live", "rrd"])
-def test_every_tab_shows_its_plots_on_the_default_timeline(source, tmp_path):
+def _open_every_tab(rec: rr.RecordingStream, url: str, web_port: int,
+                    checks: dict[int, list[tuple]], groups: Sequence[str],
+                    shots: Path) -> dict[int, list[str]]:
+    """Open the web viewer on ``url``, select each tab, return its failed checks.
+
+    Screenshots are kept as ``shots/tab<k>.png``.
+    """
+    from playwright.sync_api import sync_playwright
+
+    problems: dict[int, list[str]] = {}
+    with sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=CHROMIUM, args=FLAGS, headless=True)
+        page = browser.new_page(viewport={"width": WIDTH, "height": HEIGHT})
+        page.goto(f"http://127.0.0.1:{web_port}/?url={url}", timeout=60_000)
+        page.wait_for_selector("canvas", timeout=60_000)
+        for tab in checks:
+            if tab:  # select the tab; the timeline stays the blueprint's acq_time
+                rec.send_blueprint(blueprint(groups, active_tab=tab), make_active=True)
+            deadline = time.monotonic() + 120  # a software rasterizer on a busy machine
+            while True:
+                page.wait_for_timeout(3000)
+                png = page.screenshot(timeout=120_000)
+                problems[tab] = _failures(png, checks[tab])
+                if not problems[tab] or time.monotonic() > deadline:
+                    break
+            (shots / f"tab{tab}.png").write_bytes(png)
+        browser.close()
+    return problems
+
+
+def _blueprint_views(path: Path) -> list[tuple[str, str, str]]:
+    """(kind, name, origin) of every view of the blueprint stored in an .rrd or .rbl."""
+    from rerun.chunk import RrdReader
+
+    reader = RrdReader(str(path))
+    views = []
+    for chunk in reader.stream(store=reader.blueprints()[0]).collect().stream():
+        batch = chunk.to_record_batch()
+        if "ViewBlueprint:space_origin" not in batch.schema.names:
+            continue
+        row = [batch.column(f"ViewBlueprint:{k}").to_pylist()[-1]
+               for k in ("class_identifier", "display_name", "space_origin")]
+        views.append(tuple(v[0] if isinstance(v, list) else v for v in row))
+    return sorted(views)
+
+
+def test_the_main_commands_rrd_shows_every_tab(tmp_path):
+    """``fnsi-lab run`` (the README's main command): its .rrd, every tab populated."""
     reason = _requirements()
     if reason:
         pytest.skip(reason)
-    from playwright.sync_api import sync_playwright
+    from rerun.chunk import RrdReader
 
-    rec = rr.RecordingStream("fnsi-lab", recording_id=f"web-{source}")
-    if source == "rrd":
-        saved = rr.RecordingStream("fnsi-lab", recording_id="web-rrd")
-        saved.save(str(tmp_path / "run.rrd"), default_blueprint=blueprint(GROUPS))
-        log_example(saved)
-        saved.flush()
-        saved.disconnect()
-        from rerun.chunk import RrdReader
+    # the README's main command, as a user runs it (the simulated SmallSat: ~15 s on 2 cores)
+    cmd = [sys.executable, "-m", "fnsi_lab", "run", "--out", "smallsat.mcap",
+           "--rrd", "smallsat.rrd"]
+    done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=900)
+    assert done.returncode == 0, f"{' '.join(cmd)}: {done.stdout[-2000:]}{done.stderr[-2000:]}"
+    rrd = tmp_path / "smallsat.rrd"
+    assert (tmp_path / "smallsat.html").is_file()
 
-        url, web_port = _serve(rec)
-        rr.send_chunks(RrdReader(str(tmp_path / "run.rrd")).stream().collect(), recording=rec)
-    else:
+    # served as `fnsi-lab view smallsat.rrd --serve-web` serves it: the layout of the file's
+    # groups, which is the one the .rrd opens with (its stored default blueprint)
+    groups = signal_groups(rrd_entities(rrd))
+    assert groups == ("force", "displacement")
+    blueprint(groups).save(APP_ID, str(tmp_path / "served.rbl"))
+    assert _blueprint_views(rrd) == _blueprint_views(tmp_path / "served.rbl")
+    rec = rr.RecordingStream(APP_ID, recording_id="web-main-command")
+    try:
+        url, web_port = _serve(rec, groups)
+        rr.send_chunks(RrdReader(str(rrd)).stream().collect(), recording=rec)
+        rec.flush()
+        problems = _open_every_tab(rec, url, web_port, MAIN_CHECKS, groups, tmp_path)
+    finally:
+        rec.disconnect()
+    assert not any(problems.values()), f"{problems} (screenshots in {tmp_path})"
+
+
+def test_every_tab_shows_its_plots_while_streaming_live(tmp_path):
+    """Content logged while the viewer is connected: every tab, on the default timeline."""
+    reason = _requirements()
+    if reason:
+        pytest.skip(reason)
+    rec = rr.RecordingStream(APP_ID, recording_id="web-live")
+    try:
         url, web_port = _serve(rec)
         log_example(rec)
-    rec.flush()
-    try:
-        with sync_playwright() as pw:
-            browser = pw.chromium.launch(executable_path=CHROMIUM, args=FLAGS, headless=True)
-            page = browser.new_page(viewport={"width": WIDTH, "height": HEIGHT})
-            page.goto(f"http://127.0.0.1:{web_port}/?url={url}", timeout=60_000)
-            page.wait_for_selector("canvas", timeout=60_000)
-            problems: dict[int, list[str]] = {}
-            for tab in CHECKS:
-                if tab:  # select the tab; the timeline stays the blueprint's acq_time
-                    rec.send_blueprint(blueprint(GROUPS, active_tab=tab), make_active=True)
-                deadline = time.monotonic() + 120  # a software rasterizer on a busy machine
-                while True:
-                    page.wait_for_timeout(3000)
-                    png = page.screenshot(timeout=120_000)
-                    problems[tab] = _failures(png, tab)
-                    if not problems[tab] or time.monotonic() > deadline:
-                        break
-                (tmp_path / f"tab{tab}.png").write_bytes(png)
-            browser.close()
+        rec.flush()
+        problems = _open_every_tab(rec, url, web_port, CHECKS, GROUPS, tmp_path)
     finally:
         rec.disconnect()
     assert not any(problems.values()), f"{problems} (screenshots in {tmp_path})"
