@@ -8,7 +8,7 @@ a :class:`ValueError` (pattern of python-can's ``exceptions.py``).
 
 from __future__ import annotations
 
-from fnsi_lab.errors import ConfigError, DataFileError, FnsiLabError
+from fnsi_lab.errors import ConfigError, DataFileError, FnsiLabError, WorkFailedError
 
 
 class IdentError(FnsiLabError, ValueError):
@@ -29,6 +29,16 @@ class NotIdentifiableError(IdentError):
     """
 
 
+class NoExcitedLineError(IdentError, WorkFailedError):
+    """The processed band holds no excited line: no model can be driven there (exit 1).
+
+    The data were read and are valid; the identification has nothing to work on (an ident
+    config ``band_hz`` that misses the excitation), so the work failed (docs/cli.md).
+    """
+
+    exit_code = 1
+
+
 class IdentConfigError(ConfigError, IdentError):
     """The ident YAML configuration is wrong (file, field and fix in the message)."""
 
@@ -41,5 +51,6 @@ class IdentWarning(UserWarning):
     """Something is suspicious but identification can continue (e.g. not in steady state)."""
 
 
-__all__ = ["IdentError", "ChannelError", "NotIdentifiableError", "IdentConfigError",
+__all__ = ["IdentError", "ChannelError", "NotIdentifiableError", "NoExcitedLineError",
+           "IdentConfigError",
            "IdentDataError", "IdentWarning"]

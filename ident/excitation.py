@@ -82,6 +82,9 @@ class ExcitationGrid:
         df = float(sample_rate_hz) / int(samples_per_period)
         return {"source": self.source, "grid": self.kind, "step": int(self.step),
                 "offset": int(self.offset), "n_excited": int(self.lines.size),
+                "band_hz": ([round(float(self.lines.min()) * df, 6),
+                             round(float(self.lines.max()) * df, 6)] if self.lines.size
+                            else None),
                 "n_candidates": int(self.n_candidates),
                 "rejected_off_grid_hz": [round(float(k) * df, 6) for k in self.off_grid],
                 "rejected_isolated_hz": [round(float(k) * df, 6) for k in self.isolated],

@@ -25,7 +25,7 @@ from fnsi_lab.ident.basis import ESTIMABLE, Nonlinearity
 from fnsi_lab.ident.coefficients import (CoefficientSpectra, nonlinear_coefficients,
                                          spread_function, summarize_coefficients)
 from fnsi_lab.ident.config import IdentConfig
-from fnsi_lab.ident.errors import IdentError, IdentWarning
+from fnsi_lab.ident.errors import IdentError, IdentWarning, NoExcitedLineError
 from fnsi_lab.ident.fnsi import StateSpaceModel, model_at_order, subspace_decomposition
 from fnsi_lab.ident.io import IdentInput, select_channels
 from fnsi_lab.ident.options import parse_orders
@@ -245,6 +245,8 @@ def prepare_session(inp: IdentInput, cfg: IdentConfig, *, search_order: int | No
             time_base=cfg.time_base, bilinear_period_s=cfg.bilinear_period_s,
             basis_oversample=cfg.basis_oversample,
             integration_min_snr=cfg.integration_min_snr or None)
+    if not np.any(data.excited):  # poles fitted to undriven lines would be no answer
+        raise NoExcitedLineError(_no_excited_line(data))
     weighted = cfg.weighting != "none"
     if cfg.weighting == "noise" and data.noise_cov is None:
         if data.n_periods >= 2:  # ident.periodic.floor_noise: the spread is no noise
@@ -271,6 +273,18 @@ def prepare_session(inp: IdentInput, cfg: IdentConfig, *, search_order: int | No
                         warnings=list(inp.notes) + truth_notes
                         + [str(w.message) for w in caught]
                         + (list(search.warnings) if search is not None else []))
+
+
+def _no_excited_line(data: FrequencyData) -> str:
+    """One line naming the processed band and where the excitation is."""
+    lo, hi = (float(x) for x in data.band_hz)
+    exc = data.excitation or {}
+    where = ""
+    if exc.get("band_hz"):
+        a, b = exc["band_hz"]
+        where = f"; the excitation's {exc.get('n_excited')} lines lie in {a:.4g}-{b:.4g} Hz"
+    return (f"no excited line in the processed band {lo:g}-{hi:g} Hz{where} "
+            "(fix: an ident config band_hz that covers them)")
 
 
 def _driving_points(session: IdentSession) -> Any:

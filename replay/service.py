@@ -897,8 +897,6 @@ def config_identifier(config: Any = None, *, truth: Mapping[str, Any] | None = N
         with warnings.catch_warnings():  # steady-state warnings go to the status, not stderr
             warnings.simplefilter("ignore")
             ident = identify_input(inp, cfg, orders=sweep)
-        if not np.any(ident.data.excited):  # poles fitted to undriven lines: no answer
-            raise _no_excited_line(ident.data, record)
         curves: dict = {}
         if ident.config.nonlinearities:
             res = ident.auto
@@ -916,21 +914,6 @@ def config_identifier(config: Any = None, *, truth: Mapping[str, Any] | None = N
             + (f", config {config.file}" if config is not None and config.file else
                ", excited band" + (", basis from the recording truth" if use_truth else "")))
     return identify, what
-
-
-def _no_excited_line(data: Any, record: Any) -> Exception:
-    """The error of an identification whose processed band holds no excited line (an ident
-    config ``band_hz`` that misses the excitation): it names both bands."""
-    from fnsi_lab.ident.errors import IdentError
-
-    lo, hi = (float(x) for x in data.band_hz)
-    where = ""
-    lines = np.asarray(getattr(record, "excited_lines", ()), dtype=float)
-    if lines.size:
-        f = lines * float(record.sample_rate_hz) / float(record.samples_per_period)
-        where = f"; the excitation's {lines.size} lines lie in {f.min():.4g}-{f.max():.4g} Hz"
-    return IdentError(f"no excited line in the processed band {lo:g}-{hi:g} Hz{where} "
-                      "(fix: an ident config band_hz that covers them)")
 
 
 def auto_identifier(*, orders: Sequence[int] | str | None = range(2, 41)) -> Identifier:

@@ -422,6 +422,23 @@ def test_run_whose_identification_fails_exits_1_with_the_reason(tmp_path, capsys
         assert rec.n_blocks == 40
 
 
+def test_ident_whose_band_holds_no_excited_line_exits_1(tmp_path, capsys):
+    """The identification itself refuses (ident.pipeline), at a fixed order and automatic
+    alike, so `ident` and `run` agree: exit 1 (the work failed), one line naming both bands."""
+    config = _experiment(tmp_path)
+    rec = tmp_path / "r.mcap"
+    assert main(["acquire", "--config", str(config), "--out", str(rec), "--quiet"]) == 0
+    ident = tmp_path / "ident.yaml"
+    ident.write_text("band_hz: [100, 200]\n")  # the multisine excites 5-50 Hz only
+    capsys.readouterr()
+    for how in (["--auto", "--orders", "2:4"], ["--order", "4"]):
+        out = tmp_path / f"r{len(how)}.json"
+        assert main(["ident", str(rec), "--config", str(ident), *how, "--json", str(out)]) == 1
+        line = _one_line_error(capsys.readouterr().err)
+        assert "no excited line in the processed band 100-200 Hz; the excitation's" in line
+        assert not out.exists()
+
+
 #: A failed identification as `fnsi-lab ident --json` writes it (lumped recording, ident band
 #: 100-200 Hz, information criterion over the processed band): poles fitted to lines the
 #: multisine (5-50 Hz) never drove, no excited line, an empty FRF.
