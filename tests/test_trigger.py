@@ -30,6 +30,22 @@ def first_crossing(x: np.ndarray, level: float, slope: str) -> int:
     return -1
 
 
+
+def _check_triggered_recording(out, expected, k0: int, pre: int, kept: int):
+    """The recording holds the signal from ``pre`` samples before the crossing at ``k0``
+    (samples are stored as float32: bit for bit after that rounding); its first block
+    starts at sample 0. Returns the metadata, the trigger events and the blocks."""
+    with open_recording(out) as rec:
+        data = rec.read_samples()
+        metadata = rec.metadata
+        events = [e for e in rec.iter_events() if e["kind"] == "trigger"]
+        blocks = list(rec.iter_blocks())
+    assert data.shape[0] >= kept
+    np.testing.assert_array_equal(
+        data, expected[k0 - pre:k0 - pre + data.shape[0]].astype(np.float32))
+    assert blocks[0].first_sample == 0
+    return metadata, events, blocks
+
 def test_find_crossing_slopes_and_block_boundary() -> None:
     x = np.array([0.0, 0.5, 1.0, 2.0, 1.0, 0.0, np.nan, 3.0])
     assert find_crossing(x, 1.0, "rising") == 2          # 0.5 < 1 <= 1.0
@@ -85,18 +101,10 @@ def test_trigger_on_virtual_can_bus_recorded(tmp_path: Path, channel: str,
     finally:
         watchdog.cancel()
     assert report.events >= 1 and "trigger" not in report.source_problems  # not a problem
-    with open_recording(out) as rec:
-        data = rec.read_samples()
-        assert rec.metadata["trigger"] == {"channel": "F-NC2W-Z", "level": level,
-                                           "slope": "rising", "pre_samples": pre}
-        events = [e for e in rec.iter_events() if e["kind"] == "trigger"]
-        blocks = list(rec.iter_blocks())
-    assert data.shape[0] >= kept
-    # the recording starts exactly pre samples before the crossing (samples are stored as
-    # float32: bit for bit after that rounding)
-    np.testing.assert_array_equal(
-        data, expected[k0 - pre:k0 - pre + data.shape[0]].astype(np.float32))
-    assert blocks[0].first_sample == 0
+    # the recording starts exactly pre samples before the crossing
+    metadata, events, blocks = _check_triggered_recording(out, expected, k0, pre, kept)
+    assert metadata["trigger"] == {"channel": "F-NC2W-Z", "level": level,
+                                   "slope": "rising", "pre_samples": pre}
     assert abs(blocks[0].t0_ns - (can_t.T0 + (k0 - pre) / can_t.FS) * 1e9) < 1e3  # bus time
     assert len(events) == 1
     detail = events[0]["detail"]
@@ -172,16 +180,8 @@ def test_trigger_on_serial_loop_recorded(tmp_path: Path) -> None:
     finally:
         watchdog.cancel()
     assert report.events >= 1 and "trigger" not in report.source_problems
-    with open_recording(out) as rec:
-        got = rec.read_samples()
-        assert rec.metadata["trigger"] == trigger
-        assert rec.metadata["source"]["kind"] == "serial"
-        events = [e for e in rec.iter_events() if e["kind"] == "trigger"]
-        blocks = list(rec.iter_blocks())
-    assert got.shape[0] >= kept
-    np.testing.assert_array_equal(
-        got, expected[k0 - pre:k0 - pre + got.shape[0]].astype(np.float32))
-    assert blocks[0].first_sample == 0
+    metadata, events, blocks = _check_triggered_recording(out, expected, k0, pre, kept)
+    assert metadata["trigger"] == trigger and metadata["source"]["kind"] == "serial"
     assert len(events) == 1
     detail = events[0]["detail"]
     assert detail["source_sample"] == k0 and detail["sample"] == pre
