@@ -227,6 +227,15 @@ _OUTPUT_RANK_MARGIN = 8
 #: F = 2008): below it the exact QR always runs, because the Gram form's precision cost
 #: models (5 stacked SmallSat realisations: 6 of the 11 Table-1 modes against 10 by QR).
 _QR_MAX_FLOPS = 1.2e11
+#: Below this QR cost (flops; about 1 s on one core, the 39-channel SmallSat with one
+#: realisation costs 5.7e9) the exact QR runs without trying the Gram form first.
+_QR_CHEAP_FLOPS = 1e10
+#: Between the two, :func:`_projected_residual_gram` is used when the first squared singular
+#: value beyond the largest order (the noise floor) is at least this many times its absolute
+#: round-off ``eps trace(Y_i Y_i^T)``, i.e. resolved to 1e-6 relative. Measured (10 stacked
+#: one-period SmallSat realisations, 39 outputs): 60 dB noise gives 8e6; noise-free data 32
+#: (there the exact QR runs).
+_GRAM_MIN_FLOOR_RATIO = 1e6
 
 
 def _modal(a: np.ndarray):
@@ -523,6 +532,44 @@ def _hankel_residual_gram(data_z, lines, E, Y, i: int) -> np.ndarray:
     return 0.5 * (S + S.T)
 
 
+def _projected_residual_gram(z, E, Y, lines, i: int, check_order: int) -> np.ndarray | None:
+    """``L22 L22^T`` as ``Y_i Y_i^T - C^T C``, ``C = Q_E^T Y_i^T``, or None if not resolved.
+
+    The Gram form's Schur complement divides by the input block ``E_i E_i^T``, whose
+    condition number grows without bound when the inputs are band-limited (the SmallSat's
+    force: 6e15 with the band-limited lines); here the projection on the inputs uses the
+    explicit orthonormal ``Q_E`` of ``E_i^T`` (Householder, ``O(F (i m_e)^2)``) and ``C``
+    costs ``O(F i^2 m_e p)``, while ``Y_i Y_i^T`` comes from lag sums (``O(F p^2 i)``),
+    against the full QR's ``O(F i^2 (m_e + p)^2)``. The one subtraction leaves an absolute
+    round-off of about ``eps trace(Y_i Y_i^T)`` on the eigenvalues, so the result is kept
+    only when the first eigenvalue beyond ``check_order`` (the noise floor the sweep sees)
+    is at least :data:`_GRAM_MIN_FLOOR_RATIO` times that: noisy data, not noise-free
+    simulations (there the caller runs the exact QR).
+    """
+    m_e, p = E.shape[1], Y.shape[1]
+    F = z.size
+    G = _lag_gram(z, lines, Y, i).real
+    r = np.arange(i)
+    d = r[:, None] - r[None, :] + i - 1
+    Gyy = G[d].transpose(0, 2, 1, 3).reshape(i * p, i * p)
+    xi = z[None, :] ** r[:, None]                                    # (i, F)
+    Ei = (xi[:, None, :] * E.T[None]).reshape(i * m_e, F)
+    Q = np.linalg.qr(np.hstack([Ei.real, Ei.imag]).T)[0]              # (2F, i m_e)
+    C = np.zeros((i * m_e, i * p))
+    for a in range(0, F, _CHUNK):                                     # Y_i in line chunks
+        b = min(a + _CHUNK, F)
+        Yi = (xi[:, None, a:b] * Y[a:b].T[None]).reshape(i * p, b - a)
+        C += Q[a:b].T @ Yi.real.T + Q[F + a:F + b].T @ Yi.imag.T
+    S = Gyy - C.T @ C
+    S = 0.5 * (S + S.T)
+    if check_order >= S.shape[0]:
+        return None
+    floor = np.finfo(float).eps * float(np.trace(Gyy))
+    k = S.shape[0] - 1 - int(check_order)              # the (n_max + 1)-th largest eigenvalue
+    beyond = sla.eigvalsh(S, subset_by_index=(k, k), check_finite=False)[0]
+    return S if beyond >= _GRAM_MIN_FLOOR_RATIO * floor else None
+
+
 def subspace_decomposition(data: FrequencyData, *, max_order: int, block_rows: int | None = None,
                            weighted: bool = True, output_rank: int | str | None = "auto",
                            method: str = "auto") -> SubspaceDecomposition:
@@ -545,9 +592,12 @@ def subspace_decomposition(data: FrequencyData, *, max_order: int, block_rows: i
         How ``L22`` is obtained: ``'qr'`` (QR of the block Hankel matrices) or ``'gram'``
         (block-Toeplitz lag sums and a Schur complement, :func:`_hankel_residual_gram`:
         ``O(F q^2 i)`` instead of ``O(F q^2 i^2)``, independent of the number of stacked
-        realisations per unique line). ``'auto'``: QR while it costs at most ``_QR_MAX_FLOPS``
-        (exact to round-off; the Gram form resolves singular values down to about
-        ``sqrt(eps) S[0]`` only), else the Gram form.
+        realisations per unique line). ``'auto'``: the QR while it is cheap
+        (``_QR_CHEAP_FLOPS``); up to ``_QR_MAX_FLOPS`` the projected Gram form
+        (:func:`_projected_residual_gram`) when it provably resolves the singular values of
+        the sweep (a noise floor far above its round-off, :data:`_GRAM_MIN_FLOOR_RATIO`:
+        real, noisy data), else the QR (exact to round-off); beyond, the Gram form (it
+        resolves singular values down to about ``sqrt(eps) S[0]`` only).
 
     Returns
     -------
@@ -593,8 +643,15 @@ def subspace_decomposition(data: FrequencyData, *, max_order: int, block_rows: i
     # stacked realisations: each line's R columns folded into m_e + p (exact)
     z_q, E_q, Y_q = merge_repeated_lines(data.z, data.lines, data.E, Y)
     F_q = z_q.size
+    S22 = None
     if method == "auto":  # the QR is exact to round-off; the Gram form to sqrt(eps) of S[0]
-        method = "qr" if 4.0 * F_q * (i * (m_e + p)) ** 2 <= _QR_MAX_FLOPS else "gram"
+        flops = 4.0 * F_q * (i * (m_e + p)) ** 2
+        method = "qr"
+        if flops > _QR_MAX_FLOPS:
+            method = "gram"
+        elif flops > _QR_CHEAP_FLOPS:  # a Gram form where it provably resolves the sweep
+            S22 = _projected_residual_gram(data.z, data.E, Y, data.lines, i, max_order)
+            method = "qr" if S22 is None else "projected"
     if method == "qr":
         r = np.arange(i)
         xi = z_q[None, :] ** r[:, None]  # (i, F_q); z_k from the data's time base
@@ -608,7 +665,8 @@ def subspace_decomposition(data: FrequencyData, *, max_order: int, block_rows: i
         S22 = None
     else:
         L22 = None
-        S22 = _hankel_residual_gram(data.z, data.lines, data.E, Y, i)  # L22 L22^T
+        if S22 is None:  # method 'gram'
+            S22 = _hankel_residual_gram(data.z, data.lines, data.E, Y, i)  # L22 L22^T
     t1 = time.perf_counter()
     cov = _cov_for_svd(data, weighted)
     if cov is not None and W is not None:  # W^T Sigma_k W, per line

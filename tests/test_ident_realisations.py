@@ -68,3 +68,63 @@ def test_identification_of_folded_realisations_matches_the_unfolded_one(monkeypa
                                                             rel=5e-4)
     assert folded.modes[0]["frequency_hz"] == pytest.approx(plain.modes[0]["frequency_hz"],
                                                             rel=1e-5)
+
+
+def _hankel_qr_residual(z, E, Y, i):
+    """``L22 L22^T`` by the exact QR of the block Hankel data (the reference)."""
+    import scipy.linalg as sla
+    r = np.arange(i)
+    xi = z[None, :] ** r[:, None]
+    Ei = (xi[:, None, :] * E.T[None]).reshape(i * E.shape[1], -1)
+    Yi = (xi[:, None, :] * Y.T[None]).reshape(i * Y.shape[1], -1)
+    M = np.block([[Ei.real, Ei.imag], [Yi.real, Yi.imag]])
+    R = sla.qr(M.T, mode="r")[0][:M.shape[0]]
+    L22 = R[i * E.shape[1]:, i * E.shape[1]:].T
+    return L22 @ L22.T
+
+
+def test_projected_gram_equals_the_qr_residual_and_refuses_an_unresolved_floor():
+    z, lines, E, Y = _stacked(R=4, F_u=100, m_e=2, p=3, seed=1)
+    reference = _hankel_qr_residual(z, E, Y, 6)
+    S = fnsi._projected_residual_gram(z, E, Y, lines, 6, check_order=10)
+    assert S is not None          # random outputs: a noise floor far above round-off
+    assert np.max(np.abs(S - reference)) <= 1e-12 * np.max(np.abs(reference))
+    # outputs exactly explained by the inputs (noise-free, no dynamics beyond them): the
+    # residual is round-off, which the projected form cannot resolve -> None (exact QR)
+    Y_exact = E @ np.array([[1.0, 2.0, -1.0], [0.5, -1.0, 3.0]])
+    assert fnsi._projected_residual_gram(z, E, Y_exact, lines, 6, check_order=10) is None
+
+
+def test_auto_method_takes_the_projected_form_only_on_noisy_data(monkeypatch):
+    """Above the cheap-QR cost, noisy data go through the projected form with the QR's
+    singular values; noise-free data keep the QR."""
+    rng = np.random.default_rng(2)
+    R, F_u, N = 8, 300, 2048
+    lines = np.tile(np.arange(20, 20 + F_u), R)
+    z = np.exp(2j * np.pi * lines / N)
+    E = rng.standard_normal((lines.size, 1)) + 1j * rng.standard_normal((lines.size, 1))
+    pole = 0.98 * np.exp(2j * np.pi * 100 / N)
+    H = 1.0 / ((z - pole) * (z - pole.conj()))
+    clean = np.stack([H, z * H, H / z], axis=1) * E
+    monkeypatch.setattr(fnsi, "_QR_CHEAP_FLOPS", 0.0)      # always past the cheap QR
+    for noise, expected in ((1e-3, "projected"), (0.0, "qr")):
+        Y = clean + noise * (rng.standard_normal(clean.shape)
+                             + 1j * rng.standard_normal(clean.shape))
+        data = _frequency_data(z, lines, E, Y, N)
+        dec = fnsi.subspace_decomposition(data, max_order=6, block_rows=8, weighted=False)
+        assert expected in dec.timings_s
+        if expected == "projected":
+            ref = fnsi.subspace_decomposition(data, max_order=6, block_rows=8,
+                                              weighted=False, method="qr")
+            # the projected form's round-off on an eigenvalue is about eps trace(Y_i Y_i^T),
+            # accepted only at most 1e-6 of the floor: singular values within 5e-7 relative
+            np.testing.assert_allclose(dec.singular_values[:7], ref.singular_values[:7],
+                                       rtol=1e-6)
+
+
+def _frequency_data(z, lines, E, Y, N):
+    return fnsi.FrequencyData(lines=lines, frequencies_hz=lines / N, z=z, Y=Y, E=E,
+                              input_scale=np.ones(E.shape[1]), noise_cov=None,
+                              n_inputs=E.shape[1], sample_rate_hz=1.0, samples_per_period=N,
+                              output_names=("a", "b", "c"), input_names=("u",),
+                              excited=np.ones(lines.size, bool))
