@@ -338,3 +338,12 @@ def test_a_quantity_asked_twice_is_computed_once():
     assert np.array_equal(once.displacement, twice.displacement)
     with pytest.raises(ValueError, match="unknown quantities"):
         simulate(model, u, 64.0, periodic=256, quantities=("jerk",))
+
+
+def test_fast_fft_length_equals_scipys():
+    """daq.sim.integrate keeps its own 5-smooth length (scipy.fft is not imported by
+    `acquire`); it must be scipy's real-FFT choice exactly, or the simulated outputs change."""
+    import scipy.fft
+    from fnsi_lab.daq.sim.integrate import _next_fast_len
+    for n in list(range(1, 2000)) + [8192 * 6 + 1, 49153, 65537, 409601, 1_000_003]:
+        assert _next_fast_len(n) == scipy.fft.next_fast_len(n, real=True), n
