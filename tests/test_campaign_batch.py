@@ -79,9 +79,7 @@ def _rows(out: Path) -> dict[str, dict]:
 def test_local_cluster_matches_ident_and_survives_a_corrupted_input(recordings, tmp_path, capsys):
     root, good, bad = recordings
     out = tmp_path / "campaign.parquet"
-    t0 = time.perf_counter()
     assert _batch(root, out, "--workers", "2") == 1  # one input failed
-    first_s = time.perf_counter() - t0
     assert "failed: " in capsys.readouterr().err
     rows = _rows(out)
     assert set(rows) == {p.name for p in good} | {bad.name}
@@ -110,9 +108,7 @@ def test_local_cluster_matches_ident_and_survives_a_corrupted_input(recordings, 
 
     # resumed: nothing new, the good inputs are skipped, the corrupted one is tried again
     stamps = {p.name: Path(rows[p.name]["result"]).stat().st_mtime_ns for p in good}
-    t0 = time.perf_counter()
     assert _batch(root, out, "--workers", "2") == 1
-    resumed_s = time.perf_counter() - t0
     again = _rows(out)
     assert [again[p.name]["status"] for p in good] == ["skipped", "skipped"]
     assert again[bad.name]["status"] == "error"
@@ -120,8 +116,10 @@ def test_local_cluster_matches_ident_and_survives_a_corrupted_input(recordings, 
         assert Path(again[p.name]["result"]).stat().st_mtime_ns == stamps[p.name]
         assert {k: v for k, v in again[p.name].items() if k != "status"} == \
                {k: v for k, v in rows[p.name].items() if k != "status"}
-    # only the corrupted input is identified again (the cluster still starts for it)
-    assert resumed_s < first_s
+    # only the corrupted input was identified again: the good results are untouched (their
+    # files' times above). Not timed here: both runs are dominated by the cluster's start,
+    # and once writing results got faster the two times came within 4 % of each other
+    # (resume speed is measured by bench/campaign.py: 2 % of the first run).
 
     # the table deleted: the results themselves are recognised (same content and config)
     out.unlink()
