@@ -223,7 +223,12 @@ def nonlinear_coefficients(model: StateSpaceModel, data: FrequencyData | None,
             excited = np.asarray(data.excited, bool)
     # only the channels of the driving points and of L_a (2 of hundreds on a dense array)
     used = np.union1d([r for _, r in pairs], np.flatnonzero(np.any(L != 0, axis=1))).astype(int)
-    H = transfer_at_lines(model, f, rows=used)  # (F, len(used), m_e)
+    # stacked realisations repeat every line: evaluate each frequency once
+    f_unique, at = np.unique(f, return_inverse=True)
+    if f_unique.size < f.size:
+        H = transfer_at_lines(model, f_unique, rows=used)[at]  # (F, len(used), m_e)
+    else:
+        H = transfer_at_lines(model, f, rows=used)
     cols = [c for c, _ in pairs]
     rows = [int(np.searchsorted(used, r)) for _, r in pairs]
     num = H[:, rows, m:]  # (F, n_drive, s)

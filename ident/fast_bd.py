@@ -13,7 +13,7 @@ import scipy.linalg as sla
 from fnsi_lab.ident.errors import IdentError
 
 __all__ = ["fast_estimate_bd", "model_at_order_fast", "model_output", "model_error",
-           "line_sums"]
+           "line_sums", "line_fold"]
 
 #: Eigenvector condition number above which the sweep falls back to the core's estimate_bd.
 _FAST_COND_LIMIT = 1e8
@@ -127,7 +127,8 @@ def fast_estimate_bd(a_d, c_d, data, *, d_zero: bool = False, refine: int = 2):
         for _ in range(refine):
             theta = theta + solve(rhs(data.Y - predict(theta)))
     else:  # refinement against the normal equations (the lines are summed away)
-        rb = np.einsum("ua,uja->ja", w.conj(), T @ ch.conj(), optimize=True)
+        TC = (T.reshape(-1, p) @ ch.conj()).reshape(zu.size, me, n)     # one GEMM
+        rb = (TC * w.conj()[:, None, :]).sum(axis=0)                      # (me, n)
         b0 = to_real(rb, T.sum(axis=0))
         theta = solve(b0)
         for _ in range(refine):
@@ -170,6 +171,52 @@ def line_sums(data):
         yy = agg @ np.sum(np.abs(Y) ** 2, axis=1)
         out = (data.z[first], inv, S.reshape(-1, me, me), T.reshape(-1, me, p), yy)
     cache["line_sums"] = out
+    return out
+
+
+def line_fold(data):
+    """Each line's stacked realisations folded into at most ``m_e`` rows and a constant, or None.
+
+    The output error of a model on line ``k`` is ``||Y_k - G_k E_k||_F^2 =
+    ||[-G_k, I] D_k||_F^2`` with ``D_k = [E_k; Y_k]`` (q x R, one column per realisation),
+    so it only depends on ``D_k D_k^H = R_k^H R_k``, ``D_k^H = Q_k R_k`` (QR, inputs first).
+    Row ``j`` of ``R_k`` is a pseudo-realisation ``(E, Y) = conj(R_k[j, :m_e], R_k[j, m_e:])``;
+    the rows ``j >= m_e`` have no input part (``R_k`` is upper triangular), so their output
+    energy is the same for every model: ``||Y_k - G_k E_k||^2 = sum_{j < m_e} ||Y~_kj -
+    G_k E~_kj||^2 + c_k``, exactly (a unitary change of the realisation axis), with
+    ``c_k = ||R_k[m_e:, m_e:]||_F^2``. A model error then costs ``min(R, m_e)`` rows per line
+    instead of ``R``, with no cancellation (unlike expanding the square over :func:`line_sums`;
+    docs/ident.md, "Many channels, many realisations"). Cached on ``data``.
+
+    Returns
+    -------
+    None when no line repeats (or lines repeat unevenly), else
+    z_unique : complex ndarray, shape (F_u,)
+    inverse : int ndarray, shape (F,)
+        Unique-line index of every row of ``data``.
+    E : complex ndarray, shape (F_u, r, m_e)
+        Pseudo-realisation inputs (scaled, as ``data.E``), ``r = min(R, m_e)``.
+    Y : complex ndarray, shape (F_u, r, p)
+    const : ndarray, shape (F_u,)
+        ``c_k``, the output energy no model of the extended input explains.
+    """
+    cache = data.__dict__.setdefault("_ident_cache", {})
+    if "line_fold" in cache:
+        return cache["line_fold"]
+    _, first, inv, counts = np.unique(data.lines, return_index=True, return_inverse=True,
+                                      return_counts=True)
+    out = None
+    R = int(counts[0]) if counts.size else 0
+    if R >= 2 and counts.min() == counts.max():
+        me, p = data.E.shape[1], data.Y.shape[1]
+        order = np.argsort(inv, kind="stable")
+        A = np.hstack([data.E, data.Y])[order].conj().reshape(first.size, R, me + p)
+        Rk = np.linalg.qr(A, mode="r")                       # (F_u, min(R, q), q)
+        r = min(R, me)
+        X = Rk[:, :r].conj()                                  # (F_u, r, q): pseudo-realisations
+        const = np.sum(np.abs(Rk[:, r:, me:]) ** 2, axis=(1, 2))
+        out = (data.z[first], inv, X[:, :, :me], X[:, :, me:], const)
+    cache["line_fold"] = out
     return out
 
 
@@ -239,37 +286,26 @@ def _output(model, c_d, d_d, Ephys, z):
 def _residual_energy(model, c_d, d_d, data, mask) -> float:
     """``sum_{k in mask} ||Y_k - G(z_k) E_k||^2`` (output units squared).
 
-    With stacked realisations (:func:`line_sums`) and a mask that treats every realisation
-    of a line alike, expanded per unique line as ``||Y||^2 - 2 Re tr(G^H P) +
-    tr(G^H G M)`` (``P``, ``M`` the line sums), so the cost is that of one realisation.
-    The expansion loses digits relative to ``||Y||^2`` only (measured below 1e-10 on
-    the SmallSat's ``V ~ 1e-8``).
+    With stacked realisations and a mask that treats every realisation of a line alike,
+    the same sum over the folded pseudo-realisations of :func:`line_fold` plus their fixed
+    remainder: ``min(R, m_e)`` rows per line instead of ``R``, exact (no expansion).
     """
-    sums = line_sums(data)
+    fold = line_fold(data)
     mask = np.asarray(mask, bool) if not isinstance(mask, slice) else np.ones(data.n_lines, bool)
-    if sums is not None:
-        zu, inv, S, T, yy = sums
+    if fold is not None:
+        zu, inv, Ef, Yf, const = fold
         mask_u = np.zeros(zu.size, bool)
         mask_u[inv[mask]] = True
         if not np.array_equal(mask_u[inv], mask):
-            sums = None
-    if sums is None:
+            fold = None
+    if fold is None:
         Yh = _output(model, c_d, d_d, data.E_physical[mask], data.z[mask])
         return float(np.sum(np.abs(data.Y[mask] - Yh) ** 2))
-    sc = data.input_scale
-    mu, phi = np.linalg.eig(model.a_d)
-    ch = c_d @ phi
-    bh = np.linalg.solve(phi, model.b_d.astype(complex))          # (n, m_e), physical
-    w = 1.0 / (zu[mask_u][:, None] - mu[None, :])                 # (F_u, n)
-    Fm, n, me = w.shape[0], mu.size, bh.shape[1]
-    X = (w[:, :, None] * bh[None]).transpose(1, 0, 2).reshape(n, Fm * me)
-    Gk = (ch @ X).reshape(-1, Fm, me) + d_d[:, None, :]           # (p, F_u, m_e)
-    Sp = S[mask_u] / np.outer(sc, sc)[None]                       # physical inputs
-    Tp = T[mask_u] / sc[None, :, None]                            # (F_u, m_e, p)
-    cross = np.sum(Gk.conj() * Tp.transpose(2, 0, 1))
-    GS = sum(Gk[:, :, l, None] * Sp[None, :, :, l] for l in range(me))  # G_u S_u^T
-    quad = np.sum(Gk.conj() * GS)
-    return float(np.sum(yy[mask_u]) - 2.0 * cross.real + quad.real)
+    r = Ef.shape[1]
+    Ep = (Ef[mask_u] / data.input_scale).reshape(-1, Ef.shape[2])   # physical inputs
+    Yh = _output(model, c_d, d_d, Ep, np.repeat(zu[mask_u], r))
+    resid = Yf[mask_u].reshape(-1, Yf.shape[2]) - Yh
+    return float(np.sum(resid.real ** 2 + resid.imag ** 2) + np.sum(const[mask_u]))
 
 
 def model_error(model, data, mask):
@@ -277,8 +313,8 @@ def model_error(model, data, mask):
 
     A model of :func:`model_at_order_fast` on a compressed decomposition is evaluated on its
     ``r`` channels plus the fixed out-of-span residual (the two parts are orthogonal), so
-    the cost does not grow with the number of channels; stacked realisations are summed
-    per unique line (:func:`_residual_energy`).
+    the cost does not grow with the number of channels; stacked realisations are folded
+    per unique line (:func:`line_fold`, :func:`_residual_energy`).
     """
     cache = data.__dict__.setdefault("_ident_cache", {})
     hit = cache.get("ic_energy")

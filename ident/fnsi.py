@@ -27,6 +27,7 @@ from fnsi_lab.ident.periodic import FrequencyData, prepare_frequency_data  # noq
 __all__ = ["FrequencyData", "prepare_frequency_data", "SubspaceDecomposition", "Poles",
            "StateSpaceModel", "subspace_decomposition", "default_block_rows", "block_rows_for",
            "noise_row_limit", "default_output_rank", "merge_repeated_lines",
+           "fold_repeated_lines", "FoldedLines", "FOLD_GRAM_ENERGY",
            "output_directions", "state_matrices",
            "model_at_order",
            "models_for_orders", "estimate_bd", "project_outputs", "make_model", "discrete_to_continuous",
@@ -62,7 +63,8 @@ class SubspaceDecomposition:
     weighted : bool
         True if the noise covariance weighted the SVD (and is used for B, D).
     timings_s : dict
-        ``{'qr': s, 'svd': s}``.
+        ``{'compress': s, 'fold': s, 'qr': s, 'svd': s}`` (``'projected'`` or ``'gram'``
+        instead of ``'qr'`` when that form ran; ``'fold'``: :func:`fold_repeated_lines`).
     shift_weight : ndarray, shape (p, p) or None
         ``W = Sigma_mean^{-1/2}`` applied to every block row of the shift-invariance least
         squares when weighted (None: identity). Without it the weighting did not help: one
@@ -464,6 +466,84 @@ def _lag_gram(z: np.ndarray, lines: np.ndarray, Wk: np.ndarray, i: int) -> np.nd
     return G.reshape(lags.size, q, q)
 
 
+#: Stacked realisations, folded per line (:func:`fold_repeated_lines`): a line's realisation
+#: components (its SVD) are moved from the QR rows to lag sums, smallest first, while on every
+#: channel (row of ``[E; Y]``) their summed energy stays within this fraction of the channel's
+#: energy over all lines and realisations. Why ``eps``: a Gram sum of parts of energy ``e``
+#: is exact to about ``eps e`` (entrywise, a few ``eps`` times the sum of the absolute
+#: terms), which moves a singular value of the block-Hankel matrix ``M`` by at most
+#: ``sqrt(eps e)`` (Weyl on ``M M^T``); with ``e <= eps ||M_c||^2`` that is ``eps ||M_c||``,
+#: what the Householder QR's own backward error (``O(eps)`` of each row's norm) moves it by
+#: anyway. A larger fraction would resolve less than the QR does (the Gram form's
+#: ``sqrt(eps)``); a smaller one only costs QR rows. No component is dropped.
+FOLD_GRAM_ENERGY = float(np.finfo(float).eps)
+#: The projected Gram form (:func:`_projected_residual_gram`) is not tried when more than
+#: this share of the lines have realisation components inside the ``eps`` energy budget
+#: above (numerically no noise on any channel there): the form needs a noise floor 1e6 times
+#: its round-off (:data:`_GRAM_MIN_FLOOR_RATIO`) and refuses such data, so trying it first
+#: would only add its cost (0.4-0.8 s on ten noise-free SmallSat realisations) to the QR's.
+_FOLD_NOISE_FREE_SHARE = 0.5
+
+
+@dataclass(frozen=True, eq=False)
+class FoldedLines:
+    """Stacked realisations folded per line for the subspace step (:func:`fold_repeated_lines`).
+
+    ``M M^T`` of the block-Hankel data is that of the QR rows ``(z, E, Y)`` plus the lag sums
+    of ``small_gram`` (``sum_k Re[(xi_k xi_k^H) (x) small_gram[k]]``), exactly up to the
+    per-line SVD's round-off.
+
+    Attributes
+    ----------
+    z : complex ndarray, shape (F_q,)
+        Line of each folded row (``z_k`` repeats once per large component of line ``k``).
+    E : complex ndarray, shape (F_q, m_e)
+    Y : complex ndarray, shape (F_q, p)
+        Large components ``s_kj v_kj`` of each line's ``D_k = [E_k; Y_k]`` (q x R), split
+        into their input and output rows.
+    z_unique : complex ndarray, shape (F_u,)
+    small_gram : complex ndarray, shape (F_u, q, q), or None
+        Per line, the Gram ``sum_j s_kj^2 v_kj v_kj^H`` of the components kept out of the QR
+        (their energy is within :data:`FOLD_GRAM_ENERGY` of every channel's); None when
+        every component is large (noisy data).
+    deficient_share : float
+        Share of the lines with such small components (numerically noise-free lines).
+    n_realisations : int
+        ``R``, the number of times every line repeats.
+    """
+
+    z: np.ndarray
+    E: np.ndarray
+    Y: np.ndarray
+    z_unique: np.ndarray
+    small_gram: np.ndarray | None
+    deficient_share: float
+    n_realisations: int
+
+
+def _line_components(z: np.ndarray, lines: np.ndarray, E: np.ndarray, Y: np.ndarray):
+    """Per unique line, the SVD components of the realisations, or None if lines do not repeat.
+
+    Returns
+    -------
+    None, or (z_unique, s, comp)
+        ``z_unique`` (F_u,); ``s`` (F_u, r) singular values of ``D_k`` (descending),
+        ``r = min(R, q)``; ``comp`` (F_u, r, q) the components ``s_kj v_kj`` (columns of a
+        ``G_k`` with ``G_k G_k^H = D_k D_k^H``), ``[E; Y]`` channel order.
+    """
+    _, first, inv, counts = np.unique(lines, return_index=True, return_inverse=True,
+                                      return_counts=True)
+    R = int(counts[0]) if counts.size else 0
+    if R < 2 or counts.min() != counts.max():
+        return None
+    q = E.shape[1] + Y.shape[1]
+    order = np.argsort(inv, kind="stable")
+    A = np.hstack([E, Y])[order].conj().reshape(first.size, R, q)   # D_k^H per line
+    # D_k = V_k S_k U_k^H with A = U S V^H: the components are s_j conj(Vh[j]); U is not needed
+    _, s, Vh = np.linalg.svd(A, full_matrices=False)                # (F_u, r), (F_u, r, q)
+    return z[first], s, s[:, :, None] * Vh.conj()
+
+
 def merge_repeated_lines(z: np.ndarray, lines: np.ndarray, E: np.ndarray, Y: np.ndarray):
     """The same subspace-step data with each line's realisations folded into ``q`` columns.
 
@@ -473,6 +553,7 @@ def merge_repeated_lines(z: np.ndarray, lines: np.ndarray, E: np.ndarray, Y: np.
     orthogonal factor on the right). ``G_k = R_k^H`` from the QR ``D_k^H = Q_k R_k`` is
     exact to round-off and has ``q = m_e + p`` columns instead of ``R``: the QR of the block
     Hankel matrices then costs ``F q`` columns instead of ``F R`` when ``R > q``.
+    :func:`fold_repeated_lines` uses it when no line is rank-deficient.
 
     Parameters
     ----------
@@ -499,6 +580,148 @@ def merge_repeated_lines(z: np.ndarray, lines: np.ndarray, E: np.ndarray, Y: np.
     Rk = np.linalg.qr(A, mode="r")                                     # (F_u, q, q)
     X = Rk.conj().reshape(first.size * q, q)                           # rows: columns of R_k^H
     return np.repeat(z[first], q), X[:, :m_e], X[:, m_e:]
+
+
+def fold_repeated_lines(z: np.ndarray, lines: np.ndarray, E: np.ndarray,
+                        Y: np.ndarray) -> FoldedLines | None:
+    """Stacked realisations folded per line: QR rows for large components, lag sums for the rest.
+
+    docs/ident.md, "Many channels, many realisations".
+
+    ``D_k = [E_k; Y_k]`` (q x R) holds line ``k``'s realisations; the subspace step sees only
+    ``sum_k Re[(xi_k xi_k^H) (x) D_k D_k^H]`` (:func:`merge_repeated_lines`), and
+    ``D_k D_k^H = sum_j s_kj^2 v_kj v_kj^H`` (SVD). Noise-free realisations of a system with
+    ``m_e`` extended inputs are numerically of rank ``m_e`` per line: the other components
+    are round-off or tiny model mismatch, yet they are all the data beyond the model and
+    may not be dropped. Components whose energy, summed over the lines and smallest first,
+    stays within ``FOLD_GRAM_ENERGY = eps`` of every channel's energy enter as lag sums (a
+    Gram form, exact to ``eps`` of their own energy: the QR's round-off level, see
+    :data:`FOLD_GRAM_ENERGY`); the rest are QR rows. Ten noise-free one-period SmallSat
+    realisations (39 outputs, ``m_e = 3``): 3.2 rows per line instead of 10. Noisy data have
+    no small component: their rows stay the realisations themselves (``R <= q``) or the QR
+    fold of :func:`merge_repeated_lines` (``R > q``), bit for bit as before the split.
+
+    Parameters
+    ----------
+    z : complex ndarray, shape (F,)
+        On the unit circle (every time base's line map).
+    lines : int ndarray, shape (F,)
+        DFT line of each row; a line repeats once per realisation.
+    E : complex ndarray, shape (F, m_e)
+    Y : complex ndarray, shape (F, p)
+
+    Returns
+    -------
+    FoldedLines or None
+        None when no line repeats, lines repeat unevenly, ``z`` leaves the unit circle (the
+        lag sums assume ``|z_k| = 1``), or nothing would shrink (no small component and
+        ``R <= q``). With no small component and ``R > q``, the rows are those of
+        :func:`merge_repeated_lines` (the QR fold, as before the split existed).
+    """
+    parts = _line_components(z, lines, E, Y)
+    if parts is None or not np.allclose(np.abs(parts[0]), 1.0, rtol=0, atol=1e-12):
+        return None
+    zu, s, comp = parts
+    m_e, q = E.shape[1], comp.shape[2]
+    energy = np.abs(comp) ** 2                                         # (F_u, r, q)
+    budget = FOLD_GRAM_ENERGY * energy.sum(axis=(0, 1))                # per channel
+    by_size = np.argsort(s, axis=None, kind="stable")                   # smallest first
+    within = np.all(np.cumsum(energy.reshape(-1, q)[by_size], axis=0) <= budget, axis=1)
+    small = np.zeros(s.size, bool)
+    small[by_size[:int(np.argmin(within)) if not within.all() else s.size]] = True
+    small = small.reshape(s.shape)
+    R = int(lines.size // zu.size)
+    if not small.any():  # noisy: every component is a QR row, as the plain fold gives them
+        if R <= q:
+            return None
+        z_rows, E_rows, Y_rows = merge_repeated_lines(z, lines, E, Y)
+        return FoldedLines(z=z_rows, E=E_rows, Y=Y_rows, z_unique=zu, small_gram=None,
+                           deficient_share=0.0, n_realisations=R)
+    X = comp[~small]                                                    # (F_q, q) QR rows
+    cs = comp * small[:, :, None]
+    return FoldedLines(z=np.broadcast_to(zu[:, None], s.shape)[~small], E=X[:, :m_e],
+                       Y=X[:, m_e:], z_unique=zu,
+                       small_gram=np.einsum("kjc,kjd->kcd", cs, cs.conj(), optimize=True),
+                       deficient_share=float(np.mean(small.any(axis=1))), n_realisations=R)
+
+
+def _lag_sum_hankel_gram(z: np.ndarray, grams: np.ndarray, i: int, m_e: int) -> np.ndarray:
+    """``sum_k Re[(xi_k xi_k^H) (x) grams[k]]`` in the block-Hankel row order, shape (i q, i q).
+
+    Rows as in :func:`subspace_decomposition`'s ``M``: the ``i m_e`` input rows (block row
+    major), then the ``i p`` output rows. ``|z_k| = 1``, so block ``(r, s)`` is the lag sum
+    ``Re sum_k z_k^(r-s) grams[k]`` (negative lags: the transpose of the positive one).
+
+    Parameters
+    ----------
+    z : complex ndarray, shape (F_u,)
+    grams : complex ndarray, shape (F_u, q, q)
+        Hermitian per-line Grams, channels ``[E; Y]``.
+    i, m_e : int
+    """
+    F_u, q = grams.shape[0], grams.shape[1]
+    zl = z[None, :] ** np.arange(i)[:, None]                             # (i, F_u)
+    G = (zl @ grams.reshape(F_u, q * q)).reshape(i, q, q).real          # lags 0 .. i-1
+    r = np.arange(i)
+    lag = r[:, None] - r[None, :]                                        # of block (r, s)
+    blocks = np.where((lag >= 0)[:, :, None, None], G[np.abs(lag)],
+                      np.swapaxes(G[np.abs(lag)], 2, 3))                  # (i, i, q, q)
+    # channel-major within the input rows and within the output rows, as M
+    rows = np.concatenate([(r[:, None] * q + np.arange(m_e)[None]).ravel(),
+                           (r[:, None] * q + np.arange(m_e, q)[None]).ravel()])
+    full = blocks.transpose(0, 2, 1, 3).reshape(i * q, i * q)[np.ix_(rows, rows)]
+    return 0.5 * (full + full.T)
+
+
+def _psd_factor_rows(W: np.ndarray) -> np.ndarray:
+    """Rows ``V^T`` with ``V V^T = W`` (symmetric PSD), shape (rank, n): pivoted Cholesky.
+
+    The pivoted Cholesky stops at the LAPACK default tolerance ``n eps max(diag W)``: an error
+    of that size on ``W``, whose own round-off is of the same order.
+    """
+    from scipy.linalg import lapack
+    n = W.shape[0]
+    if not np.any(W):
+        return np.zeros((0, n))
+    c, piv, rank, info = lapack.dpstrf(W, lower=0)
+    if info < 0:
+        raise IdentError(f"pivoted Cholesky failed (LAPACK dpstrf info {info})")
+    U = np.triu(c[:rank])                                               # P^T W P = U^T U
+    rows = np.zeros((rank, n))
+    rows[:, piv - 1] = U
+    return rows
+
+
+def _qr_residual_block(z: np.ndarray, E: np.ndarray, Y: np.ndarray, i: int,
+                       extra_rows: np.ndarray | None = None) -> np.ndarray:
+    """``L22`` of the QR ``[E_i; Y_i] = L Q^T`` of the block-Hankel data, shape (i p, i p).
+
+    ``M^T = [Re; Im]`` of ``xi_k (x) [E_k; Y_k]`` (``2F`` rows, ``i (m_e + p)`` columns),
+    plus ``extra_rows`` (real, already in that column order: a factor of the lag-sum Gram of
+    :func:`fold_repeated_lines`' small components), built in Fortran order and factored in
+    place by LAPACK ``dgeqrf`` (``R`` only).
+    """
+    from scipy.linalg import lapack
+    m_e, p = E.shape[1], Y.shape[1]
+    F, n = z.size, i * (m_e + p)
+    n_extra = 0 if extra_rows is None else extra_rows.shape[0]
+    MT = np.empty((2 * F + n_extra, n), order="F")
+    xi = z[None, :] ** np.arange(i)[:, None]                          # (i, F)
+    for r in range(i):  # column blocks: input rows of block row r, then output rows
+        for X, c0, w in ((E, r * m_e, m_e), (Y, i * m_e + r * p, p)):
+            V = xi[r][:, None] * X
+            MT[:F, c0:c0 + w] = V.real
+            MT[F:2 * F, c0:c0 + w] = V.imag
+    if n_extra:
+        MT[2 * F:] = extra_rows
+    lwork = int(lapack.dgeqrf_lwork(MT.shape[0], n)[0])
+    qr, _, _, info = lapack.dgeqrf(MT, lwork=max(lwork, 1), overwrite_a=1)
+    if info != 0:
+        raise IdentError(f"QR of the block-Hankel data failed (LAPACK dgeqrf info {info})")
+    k = min(MT.shape[0], n)
+    R = np.zeros((n, n))
+    R[:k] = np.triu(qr[:k])  # fewer rows than columns (after folding): rank-deficient
+    return R[i * m_e:, i * m_e:].T
 
 
 def _hankel_residual_gram(data_z, lines, E, Y, i: int) -> np.ndarray:
@@ -589,7 +812,9 @@ def subspace_decomposition(data: FrequencyData, *, max_order: int, block_rows: i
         (:func:`output_directions`); ``'auto'``: :func:`default_output_rank`; None: every
         channel. ``C`` is ``W C_r`` on every channel; B, D are estimated on every channel.
     method : {'auto', 'qr', 'gram'}
-        How ``L22`` is obtained: ``'qr'`` (QR of the block Hankel matrices) or ``'gram'``
+        How ``L22`` is obtained: ``'qr'`` (QR of the block Hankel matrices; stacked
+        realisations first folded per line, exactly to the QR's round-off:
+        :func:`fold_repeated_lines`) or ``'gram'``
         (block-Toeplitz lag sums and a Schur complement, :func:`_hankel_residual_gram`:
         ``O(F q^2 i)`` instead of ``O(F q^2 i^2)``, independent of the number of stacked
         realisations per unique line). ``'auto'``: the QR while it is cheap
@@ -597,7 +822,9 @@ def subspace_decomposition(data: FrequencyData, *, max_order: int, block_rows: i
         (:func:`_projected_residual_gram`) when it provably resolves the singular values of
         the sweep (a noise floor far above its round-off, :data:`_GRAM_MIN_FLOOR_RATIO`:
         real, noisy data), else the QR (exact to round-off); beyond, the Gram form (it
-        resolves singular values down to about ``sqrt(eps) S[0]`` only).
+        resolves singular values down to about ``sqrt(eps) S[0]`` only). The projected form
+        is not tried when most lines' realisations are rank-deficient to round-off
+        (noise-free data, which it would refuse; :data:`_FOLD_NOISE_FREE_SHARE`).
 
     Returns
     -------
@@ -640,28 +867,27 @@ def subspace_decomposition(data: FrequencyData, *, max_order: int, block_rows: i
         raise IdentError(f"too few lines: 2F = {2 * F} < block_rows * (m_e + p) = "
                          f"{i * (m_e + p)} (widen band_hz, lower block_rows or max order)")
     t_w = time.perf_counter()
-    # stacked realisations: each line's R columns folded into m_e + p (exact)
-    z_q, E_q, Y_q = merge_repeated_lines(data.z, data.lines, data.E, Y)
-    F_q = z_q.size
+    # stacked realisations: per line, the large SVD components as QR rows and the rest as
+    # lag sums (exact to the QR's round-off, fold_repeated_lines)
+    fold = (fold_repeated_lines(data.z, data.lines, data.E, Y) if method != "gram" else None)
+    z_q, E_q, Y_q = (data.z, data.E, Y) if fold is None else (fold.z, fold.E, fold.Y)
+    t_f = time.perf_counter()
     S22 = None
     if method == "auto":  # the QR is exact to round-off; the Gram form to sqrt(eps) of S[0]
-        flops = 4.0 * F_q * (i * (m_e + p)) ** 2
+        flops = 4.0 * z_q.size * (i * (m_e + p)) ** 2
         method = "qr"
         if flops > _QR_MAX_FLOPS:
             method = "gram"
-        elif flops > _QR_CHEAP_FLOPS:  # a Gram form where it provably resolves the sweep
+        elif (flops > _QR_CHEAP_FLOPS  # a Gram form where it provably resolves the sweep
+              and (fold is None or fold.deficient_share <= _FOLD_NOISE_FREE_SHARE)):
             S22 = _projected_residual_gram(data.z, data.E, Y, data.lines, i, max_order)
             method = "qr" if S22 is None else "projected"
     if method == "qr":
-        r = np.arange(i)
-        xi = z_q[None, :] ** r[:, None]  # (i, F_q); z_k from the data's time base
-        Ei = (xi[:, None, :] * E_q.T[None]).reshape(i * m_e, F_q)
-        Yi = (xi[:, None, :] * Y_q.T[None]).reshape(i * p, F_q)
-        M = np.block([[Ei.real, Ei.imag], [Yi.real, Yi.imag]])  # (i(m_e+p), 2F)
-        R = sla.qr(M.T, mode="r", check_finite=False)[0][:M.shape[0]]  # economic R
-        if R.shape[0] < M.shape[0]:  # fewer columns than rows after folding: rank-deficient
-            R = np.vstack([R, np.zeros((M.shape[0] - R.shape[0], M.shape[0]))])
-        L22 = R[i * m_e:, i * m_e:].T  # (ip, ip); lower triangular block
+        extra = None
+        if fold is not None and fold.small_gram is not None:
+            extra = _psd_factor_rows(_lag_sum_hankel_gram(fold.z_unique, fold.small_gram,
+                                                          i, m_e))
+        L22 = _qr_residual_block(z_q, E_q, Y_q, i, extra)  # (ip, ip); lower triangular
         S22 = None
     else:
         L22 = None
@@ -714,8 +940,8 @@ def subspace_decomposition(data: FrequencyData, *, max_order: int, block_rows: i
                                  block_rows=i,
                                  max_order=ncols, n_outputs=p_all, n_extended_inputs=m_e,
                                  weighted=cov is not None, output_basis=W,
-                                 timings_s={"compress": t_w - t0, method: t1 - t_w,
-                                            "svd": t2 - t1})
+                                 timings_s={"compress": t_w - t0, "fold": t_f - t_w,
+                                            method: t1 - t_f, "svd": t2 - t1})
 
 
 def state_matrices(decomp: SubspaceDecomposition, order: int) -> tuple[np.ndarray, np.ndarray]:
