@@ -137,7 +137,10 @@ def _print_parameter_summary(res: dict, out=None) -> None:
                 e = errs[0 if par in ("g_neg", "clearance") else 1]
                 err = f" (error {e:+.3f} % vs the recording's truth)" if e is not None else ""
             print(f"  {nl['name']} {par} = {value:.6g}{unc}{err}", file=out)
-            print(f"    model error vs {par}: {objective_sketch(ob['values'], ob['relative_model_error'])}"
+            what = ("noise-weighted model error, corrected for the motion noise,"
+                    if ob.get("noise_corrected") else "model error")
+            print(f"    {what} vs {par}: "
+                  f"{objective_sketch(ob['values'], ob['relative_model_error'])}"
                   f"  (min {np.nanmin(ob['relative_model_error']):.3g})", file=out)
 
 

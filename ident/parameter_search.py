@@ -51,7 +51,7 @@ from fnsi_lab.ident.fast_bd import fast_estimate_bd
 from fnsi_lab.ident.periodic import FrequencyData, with_basis
 
 __all__ = ["Unknown", "ParameterEstimate", "ParameterSearchResult", "search_spaces",
-           "fixed_state_residual", "estimate_basis_parameters", "has_unknown_parameters",
+           "fixed_state_residual", "estimate_basis_parameters", "MotionNoise", "has_unknown_parameters",
            "AUTO_EXPONENTS", "DEFAULT_SEARCH_ORDER", "AUTO_SIGNED_EXPONENT_INTERVAL",
            "AUTO_CLEARANCE_FRACTION"]
 
@@ -66,6 +66,11 @@ DEFAULT_SEARCH_ORDER = 30
 #: ``clearances: auto``: fraction of the largest recorded excursion towards that side
 #: searched (a gap of 0 is a linear spring; a gap at the largest excursion never touches).
 AUTO_CLEARANCE_FRACTION: tuple[float, float] = (0.02, 0.98)
+#: Narrowest finite-difference stencil of the noise-corrected objective, relative to the
+#: parameter: its noise term jumps when samples enter or leave contact. On the 3-DOF chain
+#: with 1 % noise the Hessian at the final +-2 * step stencil turned indefinite in one of
+#: eight seeds (a refusal); at +-0.5 % every seed gave a positive curvature.
+_CORRECTED_MIN_STEP = 5e-3
 
 
 def has_unknown_parameters(basis: Sequence[Nonlinearity]) -> bool:
@@ -131,8 +136,11 @@ class ParameterEstimate:
         or the better end of the coarse scan (continuous).
     motion_noise_std : float or None
         Clearances: standard deviation of the noise left in the averaged ``L^T q`` per
-        sample (from the period-to-period spread), which biases the gap upwards by about as
-        much (docs/ident.md); None without a noise estimate.
+        sample (from the period-to-period spread); None without a noise estimate.
+    noise_corrected : bool
+        The objective had the motion noise's expected share removed
+        (:class:`MotionNoise`); ``profile_objective`` is then that corrected,
+        noise-weighted model error.
     """
 
     unknown: Unknown
@@ -142,6 +150,7 @@ class ParameterEstimate:
     profile_objective: np.ndarray
     margin: float = float("nan")
     motion_noise_std: float | None = None
+    noise_corrected: bool = False
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able record."""
@@ -150,6 +159,7 @@ class ParameterEstimate:
                 "interval": None if u.interval is None else list(u.interval),
                 "candidates": None if u.candidates is None else list(u.candidates),
                 "reach": u.reach, "margin": self.margin, "motion_noise_std": self.motion_noise_std,
+                "noise_corrected": self.noise_corrected,
                 "profile": {"values": self.profile_values, "objective": self.profile_objective}}
 
 
@@ -279,20 +289,149 @@ def fixed_state_residual(a_d: np.ndarray, c_d: np.ndarray, data: FrequencyData, 
     ndarray, shape (2 F p,)
         Real, then imaginary parts of ``Y - (C (z I - A)^-1 B + D) E`` (output units).
     """
+    r = _fixed_state_fit(a_d, c_d, data, d_zero=d_zero).residual
+    return np.concatenate([r.real.ravel(), r.imag.ravel()])
+
+
+@dataclass
+class _Fit:
+    """B, D of a candidate with ``A``, ``C`` fixed; ``G_basis`` = FRF to the basis columns."""
+
+    residual: np.ndarray   # (F, p) complex, output units
+    G_basis: np.ndarray    # (F, p, s) complex, output units per basis unit
+
+
+def _fixed_state_fit(a_d: np.ndarray, c_d: np.ndarray, data: FrequencyData, *,
+                     d_zero: bool = False) -> _Fit:
     bd = fast_estimate_bd(a_d, c_d, data, d_zero=d_zero)
     if bd is None:  # ill-conditioned eigenvectors: the core's solver
         bd = fnsi.estimate_bd(a_d, c_d, data, d_zero=d_zero, weighted=False)
     b_d, d_d = bd
     E = data.E_physical
+    m = data.n_inputs
     mu, phi = np.linalg.eig(a_d)
     if np.linalg.cond(phi) < 1e8:    # modal form: O(F n m_e)
         bh = np.linalg.solve(phi, b_d.astype(complex))
-        X = ((E @ bh.T) / (data.z[:, None] - mu[None, :])) @ phi.T
+        inv = 1.0 / (data.z[:, None] - mu[None, :])                    # (F, n)
+        X = ((E @ bh.T) * inv) @ phi.T
+        cphi = c_d @ phi
+        G_basis = np.einsum("pn,kn,ns->kps", cphi, inv, bh[:, m:], optimize=True)
     else:                            # defective A: batched solves of (z I - A)
         zi = data.z[:, None, None] * np.eye(a_d.shape[0]) - a_d
         X = np.linalg.solve(zi, (E @ b_d.T)[:, :, None])[:, :, 0]
-    r = data.Y - X @ c_d.T - E @ d_d.T
-    return np.concatenate([r.real.ravel(), r.imag.ravel()])
+        G_basis = c_d @ np.linalg.solve(zi, np.broadcast_to(b_d[:, m:], (len(data.z),)
+                                                            + b_d[:, m:].shape))
+    G_basis = G_basis + d_d[None, :, m:]
+    return _Fit(data.Y - X @ c_d.T - E @ d_d.T, G_basis)
+
+
+class MotionNoise:
+    """What the noise in the averaged motion adds to ``|Y_k - Y_hat_k|^2``, per line and output.
+
+    The basis functions read the measured motion ``q + n``; to first order each column
+    carries ``dh_a = h_a'(L_a^T q) L_a^T n`` (``h'`` the slope of the basis function: 1 in
+    contact and 0 out of it for a stop), whose line ``k`` has the covariance
+    ``C_ab(k) = sum_j F_a(k - j) F_b(k - j)^* L_a^T S(j) L_b`` (``F_a`` the spectrum of
+    ``h_a'``, ``S`` the noise cross-spectrum of the motion). Through the model it adds
+    ``G_k C(k) G_k^H`` to the expected squared residual, less twice the correlation with
+    the same noise in ``Y`` (``F_a(0) L_a^T E[n n_y^H]``). Both grow with the time spent in
+    contact, so the plain model error prefers gaps that are too large (docs/ident.md,
+    "Unknown basis parameters").
+
+    Parameters
+    ----------
+    data : FrequencyData
+        With ``motion.noise_spectrum`` (displacement outputs, ``P >= 2``).
+    basis : sequence of Nonlinearity
+        The elements (their location vectors; parameters may still be unknown).
+
+    Notes
+    -----
+    ``S`` lives on the lines ``|j| <= N/2`` and only ``k <= N/2`` is needed, so only
+    ``F_m`` for ``-N/2 <= m <= N`` enters and a circular convolution of length ``2N`` is
+    exact; the noise spectra are transformed once per search.
+    """
+
+    def __init__(self, data: FrequencyData, basis: Sequence[Nonlinearity]) -> None:
+        motion = data.motion
+        if motion is None or motion.noise_spectrum is None:
+            raise IdentError("these frequency data hold no noise spectrum of the motion "
+                             "(displacement outputs and at least 2 periods are needed)")
+        self.motion = motion
+        S = motion.noise_spectrum                                   # (N/2+1, c, c)
+        n_half = S.shape[0]
+        self.n_period = 2 * (n_half - 1)
+        self.size = 2 * self.n_period                               # circular length
+        locs = [nl.location_vector(motion.channels) for nl in basis
+                for _ in nl.coefficient_names]
+        self.L = np.array(locs)                                     # (s, c)
+        s = len(locs)
+        self.pairs = [(a, b) for a in range(s) for b in range(a, s)]
+        two_sided = np.zeros((len(self.pairs), self.size), complex)
+        for i, (a, b) in enumerate(self.pairs):
+            S_ab = np.einsum("i,kij,j->k", self.L[a], S, self.L[b])
+            two_sided[i, :n_half] = S_ab
+            two_sided[i, self.size - n_half + 1:] = np.conj(S_ab[1:][::-1])  # S(-j) = S(j)^*
+        self.S_fft = np.fft.fft(two_sided, axis=1)
+        cross = motion.noise_output_cross                           # (F0, c, p) or None
+        self.cross = None if cross is None else np.einsum("ac,kcp->kap", self.L, cross)
+
+    def _slopes(self, basis: Sequence[Nonlinearity]) -> np.ndarray:
+        """``h_a'`` on the fine grid of every realization, shape (R, N_fine, s)."""
+        out = []
+        for nl in basis:
+            L = nl.location_vector(self.motion.channels)
+            if nl.needs_velocity:            # no noise spectrum for velocities
+                R, n_fine, _ = self.motion.displacement.shape
+                out.append(np.zeros((R, n_fine, len(nl.coefficient_names))))
+                continue
+            arg = self.motion.displacement @ L + nl.offset                    # (R, N_fine)
+            step = 1e-6 * float(np.max(np.abs(arg))) or 1e-12
+            out.append(np.stack([(nl.evaluate(x + step) - nl.evaluate(x - step)) / (2 * step)
+                                 for x in arg]))
+        return np.concatenate(out, axis=2)
+
+    def terms(self, G_basis: np.ndarray, basis: Sequence[Nonlinearity]
+              ) -> tuple[np.ndarray, np.ndarray]:
+        """Expected share of the motion noise in the squared residual of a candidate.
+
+        Parameters
+        ----------
+        G_basis : complex ndarray, shape (F, p, s)
+            FRF from the (unscaled) basis columns to the outputs on the processed lines.
+        basis : sequence of Nonlinearity
+            The candidate basis (every parameter known).
+
+        Returns
+        -------
+        variance, bias : ndarrays, shape (F, p)
+            ``variance = diag(G C G^H)``; ``bias`` = ``variance`` less the correlation
+            term: the expected excess of ``|r_kp|^2`` over the fit to noise-free motion.
+        """
+        slope = self._slopes(basis)
+        R, n_fine, s = slope.shape
+        N, M = self.n_period, self.size
+        F = np.fft.rfft(slope, axis=1) / n_fine                   # (R, n_fine/2+1, s)
+        top = min(N, F.shape[1] - 1)
+        Fm = np.zeros((R, M, s), complex)                         # F_m, -N/2 <= m <= N
+        Fm[:, :top + 1] = F[:, :top + 1]
+        Fm[:, M - N // 2:] = np.conj(F[:, 1:N // 2 + 1][:, ::-1])
+        lines = self.motion.lines
+        cov = np.empty((R, lines.size, s, s), complex)
+        for i, (a, b) in enumerate(self.pairs):
+            W = Fm[:, :, a] * np.conj(Fm[:, :, b])                    # (R, M)
+            conv = np.fft.ifft(np.fft.fft(W, axis=1) * self.S_fft[i], axis=1)[:, lines]
+            cov[:, :, a, b] = conv
+            cov[:, :, b, a] = np.conj(conv)
+        cov = cov.reshape(-1, s, s)                                # (F, s, s)
+        G = G_basis
+        variance = np.einsum("kpa,kab,kpb->kp", G, cov, G.conj(), optimize=True).real
+        if self.cross is None:
+            return np.maximum(variance, 0.0), variance
+        mean_slope = F[:, 0, :].real                               # (R, s)
+        X = (mean_slope[:, None, :, None] * self.cross[None]).reshape(-1, s, self.cross.shape[2])
+        corr = np.einsum("kpa,kap->kp", G, X, optimize=True).real
+        return np.maximum(variance, 0.0), variance - 2.0 * corr
 
 
 # ---------------------------------------------------------------------------- the search
@@ -313,6 +452,7 @@ def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity]
                               weighted: bool = True, grid_points: int = 7,
                               max_relative_std: float = 0.1, min_margin: float = 25.0,
                               profile_offsets: Sequence[float] = (-0.03, 0.03),
+                              noise_correction: bool = True,
                               progress: Callable[[str], None] | None = None
                               ) -> ParameterSearchResult:
     """Estimate the unknown clearances and exponents of ``basis`` from the data.
@@ -342,6 +482,11 @@ def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity]
         (25: five standard deviations in the likelihood-ratio sense).
     profile_offsets : sequence of float
         Relative offsets of the local objective scan around each continuous estimate.
+    noise_correction : bool
+        When the data carry the noise spectrum of the motion (displacement outputs,
+        ``P >= 2``, noise above the record resolution), refine continuous parameters on the
+        noise-weighted model error less the share the motion noise adds to it
+        (:class:`MotionNoise`; docs/ident.md). False: the plain model error.
     progress : callable, optional
         ``progress(note)`` after each stage (e.g. to advance a progress bar).
 
@@ -373,58 +518,117 @@ def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity]
     disc = [k for k, u in enumerate(unknowns) if not u.continuous]
     values = np.array([_initial(u) for u in unknowns], float)
 
-    def residual(vals) -> np.ndarray | None:
-        """Projected residual of the FNSI fit (one QR + SVD, one B, D solve) at ``vals``."""
+    # the noise correction needs the noise spectrum of the motion and a resolved noise
+    correct = bool(noise_correction and data.motion is not None
+                   and data.motion.noise_spectrum is not None and data.noise_var is not None
+                   and (data.noise_resolved is None or np.any(data.noise_resolved)))
+    weights: list[np.ndarray | None] = [None]   # (F, p) once the correction is on
+    noise_model = MotionNoise(data, basis) if correct else None
+    weighted_scale = [1.0, 0.0]                 # sum W |Y|^2, sum W bias at the weights' point
+
+    def evaluate(vals) -> tuple[float, float]:
+        """``(objective, noise level)`` at ``vals``: one QR + SVD, one B, D solve.
+
+        Plain: both the relative model error ``V``. Corrected: the weighted model error less
+        the motion noise's expected share (plus that share at the weights' point, a
+        constant), and the weighted model error itself; both relative to ``sum W |Y|^2``.
+        """
         n_eval[0] += 1
         try:
-            cand = with_basis(data, _resolve(basis, unknowns, vals))
+            resolved = _resolve(basis, unknowns, vals)
+            cand = with_basis(data, resolved)
             dec = fnsi.subspace_decomposition(cand, max_order=order, block_rows=i_search,
                                               weighted=weighted)
             a_d, c_d = fnsi.state_matrices(dec, order)
-            return fixed_state_residual(a_d, c_d, cand, d_zero=d_zero)
+            fit = _fixed_state_fit(a_d, c_d, cand, d_zero=d_zero)
         except (IdentError, np.linalg.LinAlgError):  # e.g. a basis column zero at this value
-            return None
+            return float("inf"), float("inf")
+        r2 = np.abs(fit.residual) ** 2
+        W = weights[0]
+        if W is None:
+            v = float(np.sum(r2)) / y_energy
+            return v, v
+        _, bias = noise_model.terms(fit.G_basis, resolved)
+        wy, offset = weighted_scale
+        return (float(np.sum(W * (r2 - bias))) + offset) / wy, float(np.sum(W * r2)) / wy
 
-    memo: dict[tuple, float] = {}
+    def set_weights(vals) -> None:
+        """``1 / (output noise + motion noise through the model)`` per line and output at
+        ``vals``, held fixed while the parameters move (the expected share of the motion
+        noise is subtracted, not divided out: a weight that follows the parameters would
+        reward candidates that inflate it)."""
+        resolved = _resolve(basis, unknowns, vals)
+        cand = with_basis(data, resolved)
+        dec = fnsi.subspace_decomposition(cand, max_order=order, block_rows=i_search,
+                                          weighted=weighted)
+        fit = _fixed_state_fit(*fnsi.state_matrices(dec, order), cand, d_zero=d_zero)
+        variance, bias = noise_model.terms(fit.G_basis, resolved)
+        W = weights[0] = 1.0 / (data.noise_var + variance)
+        # the share removed at this point is added back as a constant: the corrected
+        # objective then reads like a weighted model error (positive, log-plottable) and
+        # has the same minimum and curvature
+        weighted_scale[:] = [float(np.sum(W * np.abs(data.Y) ** 2)), float(np.sum(W * bias))]
+        memo.clear()
 
-    def objective(vals) -> float:
+    memo: dict[tuple, tuple[float, float]] = {}
+
+    def evaluated(vals) -> tuple[float, float]:
         key = tuple(np.round(vals, 15))
         if key not in memo:
-            r = residual(vals)
-            memo[key] = float("inf") if r is None else float(r @ r) / y_energy
+            memo[key] = evaluate(vals)
         return memo[key]
+
+    def objective(vals) -> float:
+        return evaluated(vals)[0]
+
+    def scan(k: int, u: Unknown) -> tuple[np.ndarray, np.ndarray]:
+        grid = _grid(u, grid_points)
+        return grid, np.array([objective(_fill_one(values, k, g)) for g in grid])
 
     scans: dict[int, tuple[np.ndarray, np.ndarray]] = {}
     for k, u in enumerate(unknowns):  # coarse scan, one parameter at a time
-        grid = _grid(u, grid_points)
-        vs = np.array([objective(_fill_one(values, k, g)) for g in grid])
+        grid, vs = scans[k] = scan(k, u)
         if np.all(~np.isfinite(vs)):
             raise NotIdentifiableError(f"nonlinearity {u.name!r}: no candidate {u.parameter} "
                                        "gives a model on these data")
         values[k] = (_scan_minimum(grid, vs, log=grid[0] > 0) if u.continuous
                      else grid[int(np.argmin(vs))])
-        scans[k] = (grid, vs)
     note(f"scan: {_fmt(unknowns, values)}")
     n_lin = (order + (0 if d_zero else data.n_outputs)) * m_e
     dof = max(2 * data.n_lines * data.n_outputs - n_lin - len(cont), 1)
     std = np.full(len(unknowns), np.nan)
-    for _ in range(2 if disc and cont else 1):
-        if cont:
-            v_min, hess = _newton(objective, values, cont, unknowns, dof)
-            # cov = s^2 (J^T J)^-1 with ||r||^2 = V y_energy, J^T J = y_energy H / 2 and
-            # s^2 = V_min y_energy / dof
-            try:
-                cov = 2.0 * v_min / dof * np.linalg.inv(hess)
-                std[cont] = np.sqrt(np.where(np.diag(cov) > 0, np.diag(cov), np.inf))
-            except np.linalg.LinAlgError:
-                std[cont] = np.inf
-        for k in disc if cont else ():     # the continuous ones moved: choose again
-            vs = np.array([objective(_fill_one(values, k, g)) for g in unknowns[k].candidates])
-            values[k] = unknowns[k].candidates[int(np.argmin(vs))]
-            scans[k] = (np.asarray(unknowns[k].candidates), vs)
+    # corrected: twice, the weights taken at the previous estimate
+    for stage in range(2 if correct and cont else 1):
+        if correct and cont:
+            set_weights(values)
+        for _ in range(2 if disc and cont else 1):
+            if cont:
+                # the first corrected stage only has to bring the weights near the minimum
+                loose = correct and stage == 0
+                v_min, hess = _newton(objective, values, cont, unknowns, dof,
+                                      noise_level=lambda v: evaluated(v)[1],
+                                      min_rel_step=_CORRECTED_MIN_STEP if correct else 0.0,
+                                      tolerance=5e-3 if loose else 5e-4)
+                # cov = s^2 (J^T J)^-1 with ||r||^2 = V y_energy, J^T J = y_energy H / 2 and
+                # s^2 = ||r||^2 / dof at the minimum (the noise level, not the corrected V)
+                try:
+                    cov = 2.0 * evaluated(values)[1] / dof * np.linalg.inv(hess)
+                    std[cont] = np.sqrt(np.where(np.diag(cov) > 0, np.diag(cov), np.inf))
+                except np.linalg.LinAlgError:
+                    std[cont] = np.inf
+            for k in disc if cont else ():     # the continuous ones moved: choose again
+                vs = np.array([objective(_fill_one(values, k, g))
+                               for g in unknowns[k].candidates])
+                values[k] = unknowns[k].candidates[int(np.argmin(vs))]
+                scans[k] = (np.asarray(unknowns[k].candidates), vs)
+    if correct and cont:  # the profiles and margins in the objective that was minimised
+        saved = values.copy()
+        for k, u in enumerate(unknowns):
+            scans[k] = scan(k, u)
+        values[:] = saved
     note(f"estimate: {_fmt(unknowns, values)}")
-    v_best = objective(values)
-    s2 = v_best * y_energy / dof
+    v_best, v_noise = evaluated(values)
+    s2 = v_noise / dof   # per degree of freedom, in the objective's units
     estimates = []
     for k, u in enumerate(unknowns):
         grid, vs = scans[k]
@@ -436,24 +640,27 @@ def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity]
             pv = np.concatenate([grid, local, [values[k]]])
             po = np.concatenate([vs, lv, [v_best]])
             edge_v = [vs[0], vs[-1]]
-            margin = float((min(edge_v) - v_best) * y_energy / s2) if s2 > 0 else float("inf")
+            margin = float((min(edge_v) - v_best) / s2) if s2 > 0 else float("inf")
         else:
             pv, po = grid, vs
             rest = np.sort(po)[1:]
-            margin = (float((rest[0] - v_best) * y_energy / s2) if rest.size and s2 > 0
-                      else float("inf"))
+            margin = float((rest[0] - v_best) / s2) if rest.size and s2 > 0 else float("inf")
         srt = np.argsort(pv)
         est = ParameterEstimate(u, float(values[k]),
                                 float(std[k]) if u.continuous else float("nan"),
                                 np.asarray(pv, float)[srt], np.asarray(po, float)[srt], margin,
-                                _motion_noise_std(data, basis[u.element]) if u.reach else None)
+                                _motion_noise_std(data, basis[u.element]) if u.reach else None,
+                                noise_corrected=correct and u.continuous)
         _refuse_if_unclear(est, basis[u.element], max_relative_std, min_margin)
         estimates.append(est)
     notes = [f"nonlinearity {e.unknown.name!r}: {e.unknown.parameter} = {e.value:.4g} was "
              f"estimated from a relative motion with noise {e.motion_noise_std:.3g} "
-             f"({100 * e.motion_noise_std / e.value:.2g} % of it) per sample; noise in the motion "
-             "biases gaps upwards by about as much (docs/ident.md, 'Unknown basis "
-             "parameters'): average more periods"
+             f"({100 * e.motion_noise_std / e.value:.2g} % of it) per sample; "
+             + ("its mean effect was removed, its scatter remains (about 1-2 % of the gap at "
+                "5 % noise, docs/ident.md, 'Unknown basis parameters'): average more periods "
+                "for a tighter gap" if e.noise_corrected else
+                "noise in the motion biases gaps upwards by about as much (docs/ident.md, "
+                "'Unknown basis parameters'): average more periods")
              for e in estimates if e.motion_noise_std and e.motion_noise_std > 5e-3 * e.value]
     return ParameterSearchResult(_resolve(basis, unknowns, values), estimates, v_best, order,
                                  n_eval[0], i_search, {"total": time.perf_counter() - t0}, notes)
@@ -510,11 +717,15 @@ def _fmt(unknowns: Sequence[Unknown], values: np.ndarray) -> str:
 
 
 def _newton(objective, values, cont, unknowns, dof, *, rel_step=0.02, tolerance=5e-4,
-            trust=0.3, max_iterations=8):
+            trust=0.3, max_iterations=8, noise_level=None, min_rel_step=0.0):
     """Minimise ``V`` over the continuous parameters by Newton steps on a quadratic model.
 
     Stops when every step is below ``tolerance`` relative to the value or below a tenth of
-    the value's standard deviation (``dof``: residual degrees of freedom). A step moves a
+    the value's standard deviation (``dof``: residual degrees of freedom; the residual level
+    is ``V`` itself, or ``noise_level(values)`` when ``V`` has the noise's share removed).
+    The stencil never narrows below ``min_rel_step`` of the values: the noise correction
+    moves in small jumps as samples enter or leave contact, and a narrower stencil would
+    measure those jumps instead of the curvature. A step moves a
     parameter by at most ``trust`` of its value (or four stencil widths).
 
     ``V(theta)`` is close to quadratic around its minimum (SmallSat: ``V(1.1 g)/V(1.01 g)``
@@ -573,11 +784,17 @@ def _newton(objective, values, cont, unknowns, dof, *, rel_step=0.02, tolerance=
         if f1 <= f0:
             x, f0 = x + step, f1
         # converged: the step is below the tolerance or a tenth of the uncertainty
+        level = f0
+        if noise_level is not None:
+            vals = values.copy()
+            vals[cont] = x
+            level = noise_level(vals)
         with np.errstate(divide="ignore", invalid="ignore"):
-            sd = np.sqrt(np.abs(2.0 * f0 / dof / np.diag(H)))
+            sd = np.sqrt(np.abs(2.0 * level / dof / np.diag(H)))
         if np.all((np.abs(step) <= tolerance * np.abs(x)) | (np.abs(step) <= 0.1 * sd)):
             break
-        h = np.clip(2 * np.abs(step), 1e-5 * (hi - lo), h)   # narrow towards the minimum
+        h = np.clip(2 * np.abs(step), np.maximum(1e-5 * (hi - lo), min_rel_step * np.abs(x)),
+                    h)                                     # narrow towards the minimum
     values[cont] = x
     return f0, H
 

@@ -49,6 +49,16 @@ class BasisMotion:
     noise_cov : ndarray, shape (c, c) or None
         Per-sample covariance of the noise left in the averaged displacement (from the
         period-to-period spread; displacement outputs with ``P >= 2`` only).
+    noise_spectrum : complex ndarray, shape (N // 2 + 1, c, c) or None
+        Cross-spectrum of that noise on every DFT line of one period (numpy DFT divided by
+        ``N``, of the average; realizations pooled, smoothed over +-8 lines). Same condition.
+    noise_output_cross : complex ndarray, shape (F0, c, p) or None
+        ``E[n_q(k) n_y(k)^H]`` on the processed lines: the same noise seen in the averaged
+        motion and in the averaged outputs ``Y`` (they are the same records).
+
+    The two spectra let :mod:`ident.parameter_search` remove what the noise in the motion
+    adds to the model error of a candidate clearance (docs/ident.md, "Unknown basis
+    parameters").
     """
 
     displacement: np.ndarray
@@ -57,6 +67,8 @@ class BasisMotion:
     lines: np.ndarray
     force_rms: float
     noise_cov: np.ndarray | None = None
+    noise_spectrum: np.ndarray | None = None
+    noise_output_cross: np.ndarray | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -338,13 +350,31 @@ def noise_gain(periods: np.ndarray, min_snr: float = 4.0, half_width: int = 8) -
     P = Xq.shape[0]
     Xm = Xq.mean(axis=0)
     var = np.sum(np.abs(Xq - Xm) ** 2, axis=0) / (P * (P - 1))     # of the mean
-    if half_width > 0:
-        k = np.arange(var.shape[0])
-        c = np.cumsum(np.concatenate([np.zeros((1, var.shape[1])), var]), axis=0)
-        lo = np.maximum(k - half_width, 0)
-        hi = np.minimum(k + half_width + 1, var.shape[0])
-        var = (c[hi] - c[lo]) / (hi - lo)[:, None]
-    return (np.abs(Xm) ** 2 >= float(min_snr) * var).astype(float)
+    return (np.abs(Xm) ** 2 >= float(min_snr) * smooth_lines(var, half_width)).astype(float)
+
+
+def smooth_lines(x: np.ndarray, half_width: int) -> np.ndarray:
+    """Moving average over +-``half_width`` neighbouring lines (axis 0), shortened at the ends.
+
+    A noise spectrum estimated from ``P`` periods has ``P - 1`` degrees of freedom per line;
+    averaging neighbours assumes the noise spectrum is smooth, which sensor noise is.
+
+    Parameters
+    ----------
+    x : ndarray, shape (n_lines, ...)
+    half_width : int
+
+    Returns
+    -------
+    ndarray, same shape as ``x``
+    """
+    if half_width <= 0:
+        return x
+    k = np.arange(x.shape[0])
+    c = np.cumsum(np.concatenate([np.zeros((1,) + x.shape[1:], x.dtype), x]), axis=0)
+    lo = np.maximum(k - half_width, 0)
+    hi = np.minimum(k + half_width + 1, x.shape[0])
+    return (c[hi] - c[lo]) / (hi - lo).reshape((-1,) + (1,) * (x.ndim - 1))
 
 
 # ---------------------------------------------------------------------------- main entry
@@ -595,15 +625,25 @@ def prepare_frequency_data(record: Any = None, *, u: Any = None, y: Any = None,
             # only the channels the basis functions read, on the band-limited interpolation
             q_list.append(interpolate_periodic(q[:, used], basis_oversample))
             qd_list.append(None if qd is None else interpolate_periodic(qd[:, used], basis_oversample))
-        motion_noise = None
+        motion_noise = noise_spectrum = noise_cross = None
         if output_quantity == "displacement" and P >= 2:
             # per-sample noise covariance of the period average, from the period-to-period spread
-            res = (Y4 - y_avg[:, None])[..., used]                  # (R, P, N, c)
-            motion_noise = np.einsum("rpni,rpnj->ij", res, res) / (R * N * (P - 1) * P)
+            res = Y4 - y_avg[:, None]                               # (R, P, N, p)
+            res_q = res[..., used]
+            motion_noise = np.einsum("rpni,rpnj->ij", res_q, res_q) / (R * N * (P - 1) * P)
+            # ... and its spectrum, for the noise correction of the clearance search
+            dev_q = np.fft.rfft(res_q, axis=2) / N                  # (R, P, N//2+1, c)
+            dev_y = np.fft.rfft(res, axis=2)[:, :, K] / N           # (R, P, F0, p)
+            scale = 1.0 / (R * P * (P - 1))
+            noise_spectrum = smooth_lines(
+                np.einsum("rpki,rpkj->kij", dev_q, dev_q.conj()) * scale, 8)
+            noise_cross = smooth_lines(
+                np.einsum("rpki,rpkj->kij", dev_q[:, :, K], dev_y.conj()) * scale, 8)
         motion = BasisMotion(displacement=np.stack(q_list),
                              velocity=None if not need_v else np.stack(qd_list),
                              channels=tuple(output_names[i] for i in used), lines=K,
-                             force_rms=rms_p, noise_cov=motion_noise)
+                             force_rms=rms_p, noise_cov=motion_noise,
+                             noise_spectrum=noise_spectrum, noise_output_cross=noise_cross)
     Uf = np.fft.rfft(u_avg, axis=1)[:, K] / N  # (R, F0, m)
     Yf = np.fft.rfft(y_avg, axis=1)[:, K] / N  # (R, F0, p)
     excited = np.tile(np.isin(K, grid.lines), R)

@@ -490,7 +490,8 @@ def _nonlinearity_json(nl: Nonlinearity, search: Any = None, truth: Mapping | No
         out["objective"] = {p: {"values": e.profile_values, "relative_model_error":
                                 e.profile_objective, "std": e.std, "margin": e.margin,
                                 "interval": e.unknown.interval, "candidates": e.unknown.candidates,
-                                "motion_noise_std": e.motion_noise_std}
+                                "motion_noise_std": e.motion_noise_std,
+                                "noise_corrected": e.noise_corrected}
                             for p, e in est.items()}
     given = {t.get("name"): t for t in (truth or {}).get("nonlinearities") or []
              if isinstance(t, dict)}.get(nl.name)
