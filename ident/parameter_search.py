@@ -32,6 +32,11 @@ objective is flat (relative standard deviation above ``max_relative_std``) and w
 candidate exponents fit equally well (``min_margin``). docs/ident.md, "Unknown basis
 parameters", explains the objective and its limits.
 
+Noise in the measured motion adds to ``V`` a share that grows with the contact time (gaps
+come out too large). With displacement outputs and at least 2 periods the continuous
+parameters are refined on the noise-weighted model error less that share
+(:class:`MotionNoise`), the weights held fixed at the previous estimate.
+
 Shapes: ``FrequencyData`` as in :mod:`ident.periodic`; residual vectors stack the real and
 imaginary parts of ``Y - Y_hat``, shape ``(2 F p,)``.
 """
