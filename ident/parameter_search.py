@@ -531,8 +531,17 @@ def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity]
     noise_model = MotionNoise(data, basis) if correct else None
     weighted_scale = [1.0, 0.0]                 # sum W |Y|^2, sum W bias at the weights' point
 
+    def fit_at(vals) -> tuple[tuple[Nonlinearity, ...], _Fit]:
+        """The candidate basis and its FNSI fit: one QR + SVD, one B, D solve."""
+        resolved = _resolve(basis, unknowns, vals)
+        cand = with_basis(data, resolved)
+        dec = fnsi.subspace_decomposition(cand, max_order=order, block_rows=i_search,
+                                          weighted=weighted)
+        a_d, c_d = fnsi.state_matrices(dec, order)
+        return resolved, _fixed_state_fit(a_d, c_d, cand, d_zero=d_zero)
+
     def evaluate(vals) -> tuple[float, float]:
-        """``(objective, noise level)`` at ``vals``: one QR + SVD, one B, D solve.
+        """``(objective, noise level)`` at ``vals``.
 
         Plain: both the relative model error ``V``. Corrected: the weighted model error less
         the motion noise's expected share (plus that share at the weights' point, a
@@ -540,12 +549,7 @@ def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity]
         """
         n_eval[0] += 1
         try:
-            resolved = _resolve(basis, unknowns, vals)
-            cand = with_basis(data, resolved)
-            dec = fnsi.subspace_decomposition(cand, max_order=order, block_rows=i_search,
-                                              weighted=weighted)
-            a_d, c_d = fnsi.state_matrices(dec, order)
-            fit = _fixed_state_fit(a_d, c_d, cand, d_zero=d_zero)
+            resolved, fit = fit_at(vals)
         except (IdentError, np.linalg.LinAlgError):  # e.g. a basis column zero at this value
             return float("inf"), float("inf")
         r2 = np.abs(fit.residual) ** 2
@@ -562,11 +566,7 @@ def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity]
         ``vals``, held fixed while the parameters move (the expected share of the motion
         noise is subtracted, not divided out: a weight that follows the parameters would
         reward candidates that inflate it)."""
-        resolved = _resolve(basis, unknowns, vals)
-        cand = with_basis(data, resolved)
-        dec = fnsi.subspace_decomposition(cand, max_order=order, block_rows=i_search,
-                                          weighted=weighted)
-        fit = _fixed_state_fit(*fnsi.state_matrices(dec, order), cand, d_zero=d_zero)
+        resolved, fit = fit_at(vals)
         variance, bias = noise_model.terms(fit.G_basis, resolved)
         W = weights[0] = 1.0 / (data.noise_var + variance)
         # the share removed at this point is added back as a constant: the corrected
