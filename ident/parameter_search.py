@@ -53,7 +53,7 @@ from fnsi_lab.ident import fnsi
 from fnsi_lab.ident.basis import Nonlinearity
 from fnsi_lab.ident.errors import IdentError, NotIdentifiableError
 from fnsi_lab.ident.fast_bd import fast_estimate_bd
-from fnsi_lab.ident.periodic import FrequencyData, with_basis
+from fnsi_lab.ident.periodic import FrequencyData, as_displacement_outputs, with_basis
 
 __all__ = ["Unknown", "ParameterEstimate", "ParameterSearchResult", "search_spaces",
            "fixed_state_residual", "estimate_basis_parameters", "MotionNoise", "has_unknown_parameters",
@@ -508,6 +508,12 @@ def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity]
         Data without the basis motion, order too large for the data.
     """
     t0 = time.perf_counter()
+    integrated = data.output_quantity
+    if integrated != "displacement":
+        # compared in displacement units, where the model error falls smoothly towards the
+        # true parameters (as_displacement_outputs); D is estimated, whatever the caller's
+        # choice for the integrated outputs
+        data, d_zero = as_displacement_outputs(data), False
     basis = tuple(basis)
     order = int(order)
     unknowns = search_spaces(data, basis)
@@ -667,6 +673,12 @@ def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity]
                 "noise in the motion biases gaps upwards by about as much (docs/ident.md, "
                 "'Unknown basis parameters'): average more periods")
              for e in estimates if e.motion_noise_std and e.motion_noise_std > 5e-3 * e.value]
+    if integrated != "displacement" and any(e.unknown.reach for e in estimates):
+        notes.append(f"clearances estimated from {integrated} outputs count from the mean "
+                     "relative position during the test (integrated outputs carry no static "
+                     "position; a stop whose contacts are asymmetric shifts that mean); the "
+                     "contact stiffnesses do not depend on it (docs/ident.md, 'Unknown basis "
+                     "parameters')")
     return ParameterSearchResult(_resolve(basis, unknowns, values), estimates, v_best, order,
                                  n_eval[0], i_search, {"total": time.perf_counter() - t0}, notes)
 

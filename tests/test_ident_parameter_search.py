@@ -365,11 +365,49 @@ def test_viewer_logs_the_objective(tmp_path):
     assert any("relative_model_error" in n for n in columns)
 
 
+def test_search_compares_integrated_outputs_as_displacements(chain_stop):
+    """Acceleration data reach the search as the displacements they integrate to: the same
+    spectrum on every processed line (exact for band-limited samples), noise variances
+    divided by w^4, forces and motion untouched."""
+    from fnsi_lab.ident.periodic import as_displacement_outputs
+
+    model, u, _ = chain_stop
+    ms = multisine(N, FS, (5, 60), 20.0, n_periods=3, seed=1)   # as chain_stop
+    out = sim.simulate(model, np.asarray(ms.signal).reshape(-1, 1), FS, periodic=N,
+                       quantities=("displacement", "acceleration"))
+    basis = (_auto("stop", "trilinear", {"X2": 1, "X3": -1}),)
+    disp = _data(model, u, out.displacement, basis)
+    acc = prepare_frequency_data(u=u, y=out.acceleration, sample_rate_hz=FS,
+                                 samples_per_period=N, motion_for=basis, band_hz=BAND,
+                                 transient_periods=1, output_quantity="acceleration",
+                                 output_names=model.measured_names,
+                                 input_names=model.input_names,
+                                 excited_lines=excited_lines(N, FS, (5, 60)))
+    conv = as_displacement_outputs(acc)
+    assert conv.output_quantity == "displacement" and as_displacement_outputs(disp) is disp
+    # the simulator's accelerations agree with its displacements to ~1e-5 of each line
+    err = np.abs(conv.Y - disp.Y) / (np.abs(disp.Y) + 1e-6 * np.abs(disp.Y).max())
+    assert err.max() < 1e-3
+    assert np.array_equal(conv.E, acc.E) and conv.motion is acc.motion
+    noisy = acc.Y.copy()
+    w4 = (2 * np.pi * acc.frequencies_hz) ** 4
+    from dataclasses import replace as _replace
+    fake = _replace(acc, noise_var=np.abs(noisy) ** 2, noise_cov=np.abs(noisy) ** 2)
+    conv = as_displacement_outputs(fake)
+    assert np.allclose(conv.noise_var * w4[:, None], fake.noise_var)
+    assert np.allclose(conv.noise_cov * w4[:, None], fake.noise_cov)
+
+
 # ---------------------------------------------------------------------------- the SmallSat
 @pytest.mark.slow
-def test_smallsat_39_channels_gaps_auto():
-    """The paper's SmallSat, 39 displacement channels, NC2-Z clearances 'auto' through the
-    one entry point: gaps and contact stiffnesses as with the known gaps."""
+@pytest.mark.parametrize("quantity", ["displacement", "acceleration"])
+def test_smallsat_39_channels_gaps_auto(quantity):
+    """The paper's SmallSat, 39 channels, NC2-Z clearances 'auto' through the one entry
+    point: gaps and contact stiffnesses as with the known gaps, from displacements and from
+    accelerometers with 0.1 % noise and one steady period (searched in displacement units: in
+    acceleration units the model error was flat except within +-5 % of the gaps and the
+    scan missed them by -57 % / -82 %; integrating the noisy lines under the band gave the
+    known-gap coefficients +207 % / +375 %)."""
     import fnsi_lab
     from fnsi_lab.daq.sim.smallsat import DEFAULT_CLEARANCES, NC2Z_CONTACT, smallsat_model
     from fnsi_lab.ident.config import load_ident_config, packaged_config
@@ -377,20 +415,31 @@ def test_smallsat_39_channels_gaps_auto():
     model = smallsat_model()
     fs, n = 1000.0, 8192
     u = np.asarray(multisine(n, fs, (5, 50), 100.0, n_periods=6, seed=1).signal[0], float)
-    y = sim.simulate(model, u[:, None], fs, periodic=n, quantities=("displacement",)).displacement
+    y = getattr(sim.simulate(model, u[:, None], fs, periodic=n, quantities=(quantity,)), quantity)
+    if quantity == "acceleration":
+        y = y + 1e-3 * np.std(y, axis=0) * np.random.default_rng(0).standard_normal(y.shape)
     src = {"u": u[:, None], "y": y, "fs": fs, "N": n, "channels": list(model.measured_names),
-           "input_channels": ["F-NC2W-Z"]}
-    cfg = load_ident_config(packaged_config("smallsat39"))
+           "input_channels": ["F-NC2W-Z"], "quantity": quantity}
+    cfg = replace(load_ident_config(packaged_config("smallsat39")), output_quantity=quantity)
     (nl,) = cfg.nonlinearities
     auto = replace(cfg, nonlinearities=(replace(nl, clearances=(0.0, 0.0), unknown=(
         ParameterSpace("g_neg"), ParameterSpace("g_pos"))),))
     res = fnsi_lab.identify(src, auto).to_json()
     (got,) = res["nonlinearities"]
-    # measured 1e-5 (gaps) and 0.005 % (coefficients); the targets 2 % and 0.5 %
-    assert np.allclose(got["clearances"], DEFAULT_CLEARANCES["NC2-Z"], rtol=1e-3)
     truth = {"NC2-Z:neg": NC2Z_CONTACT["neg"], "NC2-Z:pos": NC2Z_CONTACT["pos"]}
+    if quantity == "displacement":
+        # measured 1e-5 (gaps) and 0.005 % (coefficients); the targets 2 % and 0.5 %
+        gap_tol, coef_tol = 1e-3, 2e-3
+    else:
+        # measured -0.76 / -0.28 % and -2.1 / +0.2 % (the known gaps: -1.5 / +0.1 %: the
+        # basis misses the motion under the band, ident.periodic highpass_hz); the gaps count
+        # from the mean position (integrated outputs have no DC; a note says so). The issue's
+        # 2 % on the gaps; 3 % on the coefficients, against +200 % before
+        gap_tol, coef_tol = 2e-2, 3e-2
+        assert any("mean relative position" in w for w in res["warnings"])
+    assert np.allclose(got["clearances"], DEFAULT_CLEARANCES["NC2-Z"], rtol=gap_tol)
     for c in res["coefficients"]:
-        assert c["mean_real"] == pytest.approx(truth[c["name"]], rel=2e-3)
+        assert c["value"] == pytest.approx(truth[c["name"]], rel=coef_tol)
 
 
 def _stop_recording(tmp_path):
