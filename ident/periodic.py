@@ -458,16 +458,15 @@ def prepare_frequency_data(record: Any = None, *, u: Any = None, y: Any = None,
         spectrum by :func:`ident.excitation.detect_excited_lines` (grid, runs, mains hum).
     highpass_hz : float, optional
         Integration high-pass for velocity/acceleration outputs (docs/method.md §2.5): lines below it
-        are zeroed before integrating. Default (None): 0 (only DC removed), except for
-        accelerations with one steady period (``P = 1``), where it is ``f_min``. On noise-free
-        simulated accelerations of the 3-DOF cubic chain a high-pass at ``0.5 f_min`` biased
-        ``c`` by -1.5 % (it removes the low-frequency intermodulation motion the basis
-        function needs), against -0.03 % without; with ``P >= 2`` the noise gate
-        (``integration_min_snr``) drops the noisy lines instead. One period has no spread to
-        gate with: on the 39-channel SmallSat (one period of accelerations, 0.1 % white noise)
-        integrating the lines under the band gave ``c`` +207 % / +375 %; ``f_min`` gives
-        -1.5 % / +0.1 % (noise-free: -1.5 % / -0.03 % instead of -0.09 % / +0.03 %). Give 0
-        to integrate every line.
+        are zeroed before integrating. Default 0 (only DC removed): on noise-free simulated
+        accelerations of the 3-DOF cubic chain a high-pass at ``0.5 f_min`` biased ``c`` by
+        -1.5 % (it removes the low-frequency intermodulation motion the basis function
+        needs), against -0.03 % without; with ``P >= 2`` the noise gate
+        (``integration_min_snr``) drops the noisy lines instead. One period of accelerations
+        has no spread to gate with (an :class:`IdentWarning` says so): on the 39-channel
+        SmallSat (one period, 0.1 % white noise) integrating the lines under the band gave
+        ``c`` +207 % / +375 %, ``highpass_hz = f_min`` -1.5 % / +0.1 %; on noise-free
+        one-period chains (bench/robustness.py) ``f_min`` cost 4-6 % against 0.001-0.005 %.
     excitation_threshold : float
         Power threshold of the excited-line detection, relative to the multisine's level
         (``threshold`` of :func:`ident.excitation.detect_excited_lines`).
@@ -644,10 +643,14 @@ def prepare_frequency_data(record: Any = None, *, u: Any = None, y: Any = None,
         used = sorted({output_names.index(c) for nl in readers for c in nl.channels
                        if c in output_names})
         need_v = any(nl.needs_velocity for nl in readers)
-        # one period of accelerations: no spread to gate the lines with (below), so the lines
-        # under the band (not excited: distortion and noise, times 1/w^4) are not integrated
-        hp = (float(highpass_hz) if highpass_hz is not None
-              else f_min if output_quantity == "acceleration" and P < 2 else 0.0)
+        hp = 0.0 if highpass_hz is None else float(highpass_hz)
+        if output_quantity == "acceleration" and P < 2 and highpass_hz is None and f_min > 0:
+            # no period spread to gate the lines with (below): noise under the band, times
+            # 1/w^4, can swamp the motion (docs/ident.md, acceleration outputs)
+            warnings.warn("one steady period of accelerations: the lines under the band are "
+                          "integrated without a noise check; with noisy data set highpass_hz "
+                          f"(e.g. {f_min:g}, the band's lower edge) or record more periods",
+                          IdentWarning, stacklevel=2)
         q_list, qd_list = [], []
         for r in range(R):
             # accelerations: lines buried in noise would dominate after double integration
