@@ -43,7 +43,9 @@ imaginary parts of ``Y - Y_hat``, shape ``(2 F p,)``.
 
 from __future__ import annotations
 
+import os
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any, Callable, Sequence
 
@@ -458,6 +460,7 @@ def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity]
                               max_relative_std: float = 0.1, min_margin: float = 25.0,
                               profile_offsets: Sequence[float] = (-0.03, 0.03),
                               noise_correction: bool = True,
+                              workers: int | None = None,
                               progress: Callable[[str], None] | None = None
                               ) -> ParameterSearchResult:
     """Estimate the unknown clearances and exponents of ``basis`` from the data.
@@ -492,6 +495,11 @@ def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity]
         ``P >= 2``, noise above the record resolution), refine continuous parameters on the
         noise-weighted model error less the share the motion noise adds to it
         (:class:`MotionNoise`; docs/ident.md). False: the plain model error.
+    workers : int, optional
+        Threads that evaluate independent candidates at once (the points of a scan, of a
+        Newton stencil, of a profile); default ``min(4, cores)``. Each candidate is one
+        QR/SVD, FFTs and small solves that release the interpreter lock: on 2 cores two
+        threads ran 16 candidates 1.8-1.9x faster, with identical values.
     progress : callable, optional
         ``progress(note)`` after each stage (e.g. to advance a progress bar).
 
@@ -524,6 +532,7 @@ def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity]
     m_e = data.n_inputs + n_basis_columns
     i_search = block_rows or search_block_rows(data.n_outputs, order, data.n_lines, m_e)
     y_energy = float(np.sum(np.abs(data.Y) ** 2))
+    n_workers = max(1, int(workers) if workers is not None else min(4, os.cpu_count() or 1))
     n_eval = [0]
     cont = [k for k, u in enumerate(unknowns) if u.continuous]
     disc = [k for k, u in enumerate(unknowns) if not u.continuous]
@@ -547,13 +556,12 @@ def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity]
         return resolved, _fixed_state_fit(a_d, c_d, cand, d_zero=d_zero)
 
     def evaluate(vals) -> tuple[float, float]:
-        """``(objective, noise level)`` at ``vals``.
+        """``(objective, noise level)`` at ``vals`` (thread-safe: reads shared state only).
 
         Plain: both the relative model error ``V``. Corrected: the weighted model error less
         the motion noise's expected share (plus that share at the weights' point, a
         constant), and the weighted model error itself; both relative to ``sum W |Y|^2``.
         """
-        n_eval[0] += 1
         try:
             resolved, fit = fit_at(vals)
         except (IdentError, np.linalg.LinAlgError):  # e.g. a basis column zero at this value
@@ -583,18 +591,26 @@ def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity]
 
     memo: dict[tuple, tuple[float, float]] = {}
 
+    def evaluated_many(points) -> list[tuple[float, float]]:
+        """``evaluate`` at each point, new ones in parallel, every one at most once."""
+        keys = [tuple(np.round(v, 15)) for v in points]
+        todo = {k: v for k, v in zip(keys, points) if k not in memo}
+        n_eval[0] += len(todo)
+        memo.update(zip(todo, _parallel_map(evaluate, list(todo.values()), n_workers)))
+        return [memo[k] for k in keys]
+
     def evaluated(vals) -> tuple[float, float]:
-        key = tuple(np.round(vals, 15))
-        if key not in memo:
-            memo[key] = evaluate(vals)
-        return memo[key]
+        return evaluated_many([vals])[0]
 
     def objective(vals) -> float:
         return evaluated(vals)[0]
 
+    def objectives(points) -> np.ndarray:
+        return np.array([v for v, _ in evaluated_many(points)])
+
     def scan(k: int, u: Unknown) -> tuple[np.ndarray, np.ndarray]:
         grid = _grid(u, grid_points)
-        return grid, np.array([objective(_fill_one(values, k, g)) for g in grid])
+        return grid, objectives([_fill_one(values, k, g) for g in grid])
 
     scans: dict[int, tuple[np.ndarray, np.ndarray]] = {}
     for k, u in enumerate(unknowns):  # coarse scan, one parameter at a time
@@ -616,7 +632,7 @@ def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity]
             if cont:
                 # the first corrected stage only has to bring the weights near the minimum
                 loose = correct and stage == 0
-                v_min, hess = _newton(objective, values, cont, unknowns, dof,
+                v_min, hess = _newton(objectives, values, cont, unknowns, dof,
                                       noise_level=lambda v: evaluated(v)[1],
                                       min_rel_step=_CORRECTED_MIN_STEP if correct else 0.0,
                                       tolerance=5e-3 if loose else 5e-4)
@@ -628,8 +644,7 @@ def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity]
                 except np.linalg.LinAlgError:
                     std[cont] = np.inf
             for k in disc if cont else ():     # the continuous ones moved: choose again
-                vs = np.array([objective(_fill_one(values, k, g))
-                               for g in unknowns[k].candidates])
+                vs = objectives([_fill_one(values, k, g) for g in unknowns[k].candidates])
                 values[k] = unknowns[k].candidates[int(np.argmin(vs))]
                 scans[k] = (np.asarray(unknowns[k].candidates), vs)
     if correct and cont:  # the profiles and margins in the objective that was minimised
@@ -647,7 +662,7 @@ def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity]
             lo, hi = u.interval
             local = values[k] * (1 + np.array(profile_offsets))
             local = local[(local >= lo) & (local <= hi)]
-            lv = np.array([objective(_fill_one(values, k, g)) for g in local])
+            lv = objectives([_fill_one(values, k, g) for g in local])
             pv = np.concatenate([grid, local, [values[k]]])
             po = np.concatenate([vs, lv, [v_best]])
             edge_v = [vs[0], vs[-1]]
@@ -681,6 +696,14 @@ def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity]
                      "parameters')")
     return ParameterSearchResult(_resolve(basis, unknowns, values), estimates, v_best, order,
                                  n_eval[0], i_search, {"total": time.perf_counter() - t0}, notes)
+
+
+def _parallel_map(fn, items: list, workers: int) -> list:
+    """``[fn(x) for x in items]``, on up to ``workers`` threads."""
+    if workers <= 1 or len(items) <= 1:
+        return [fn(x) for x in items]
+    with ThreadPoolExecutor(min(workers, len(items))) as pool:
+        return list(pool.map(fn, items))
 
 
 def _motion_noise_std(data: FrequencyData, nl: Nonlinearity) -> float | None:
@@ -733,7 +756,7 @@ def _fmt(unknowns: Sequence[Unknown], values: np.ndarray) -> str:
     return ", ".join(f"{u.label}={v:.5g}" for u, v in zip(unknowns, values))
 
 
-def _newton(objective, values, cont, unknowns, dof, *, rel_step=0.02, tolerance=5e-4,
+def _newton(objectives, values, cont, unknowns, dof, *, rel_step=0.02, tolerance=5e-4,
             trust=0.3, max_iterations=8, noise_level=None, min_rel_step=0.0):
     """Minimise ``V`` over the continuous parameters by Newton steps on a quadratic model.
 
@@ -748,7 +771,9 @@ def _newton(objective, values, cont, unknowns, dof, *, rel_step=0.02, tolerance=
     ``V(theta)`` is close to quadratic around its minimum (SmallSat: ``V(1.1 g)/V(1.01 g)``
     = 97 for a pure quadratic's 100) while the residual vector itself is strongly curved
     (Gauss-Newton on it crawled), so the gradient and Hessian of ``V`` come from a central
-    finite-difference stencil whose width follows the steps. Updates ``values`` in place.
+    finite-difference stencil whose width follows the steps (``objectives`` maps a list of
+    parameter vectors to their values: a stencil's points are evaluated together). Updates
+    ``values`` in place.
 
     Returns
     -------
@@ -761,10 +786,13 @@ def _newton(objective, values, cont, unknowns, dof, *, rel_step=0.02, tolerance=
     x = np.clip(values[cont].astype(float), lo, hi)
     k = x.size
 
-    def f(xx):
+    def full(xx):
         vals = values.copy()
         vals[cont] = xx
-        return objective(vals)
+        return vals
+
+    def f(xx):
+        return float(objectives([full(xx)])[0])
 
     f0 = f(x)
     h = np.maximum(rel_step * np.abs(x), 1e-4 * (hi - lo))
@@ -772,15 +800,16 @@ def _newton(objective, values, cont, unknowns, dof, *, rel_step=0.02, tolerance=
     for _ in range(max_iterations):
         # central differences, shifted inwards at a bound
         c = np.clip(x, lo + h, hi - h)
-        fc = f0 if np.array_equal(c, x) else f(c)
-        fp = np.array([f(c + h[j] * np.eye(k)[j]) for j in range(k)])
-        fm = np.array([f(c - h[j] * np.eye(k)[j]) for j in range(k)])
+        e = np.eye(k) * h                        # the stencil, evaluated at once
+        pairs = [(a, b) for a in range(k) for b in range(a + 1, k)]
+        pts = [c] + [c + e[j] for j in range(k)] + [c - e[j] for j in range(k)] \
+            + [c + e[a] + e[b] for a, b in pairs]
+        fs = objectives([full(p) for p in pts])
+        fc, fp, fm, fab = fs[0], fs[1:k + 1], fs[k + 1:2 * k + 1], fs[2 * k + 1:]
         g = (fp - fm) / (2 * h)
         H = np.diag((fp + fm - 2 * fc) / h ** 2)
-        for a in range(k):
-            for b in range(a + 1, k):
-                fab = f(c + h[a] * np.eye(k)[a] + h[b] * np.eye(k)[b])
-                H[a, b] = H[b, a] = (fab - fp[a] - fp[b] + fc) / (h[a] * h[b])
+        for (a, b), v in zip(pairs, fab):
+            H[a, b] = H[b, a] = (v - fp[a] - fp[b] + fc) / (h[a] * h[b])
         g = g + H @ (x - c)                      # gradient at x from the model around c
         try:
             step = -np.linalg.solve(H, g) if np.all(np.linalg.eigvalsh(H) > 0) else None

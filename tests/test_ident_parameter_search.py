@@ -94,6 +94,20 @@ def test_relative_two_sided_stop_noise_free(chain_stop, sign):
         assert c.mean_real == pytest.approx(t, rel=1e-3)
 
 
+def test_parallel_candidates_change_nothing(chain_stop):
+    """Candidates evaluated on two threads give the same estimate, profile and fit count as
+    one thread (each candidate is a pure function of the data)."""
+    model, u, y = chain_stop
+    nl = _auto("stop", "trilinear", {"X2": 1, "X3": -1})
+    data = _data(model, u, y, [nl])
+    one = estimate_basis_parameters(data, [nl], order=6, workers=1)
+    two = estimate_basis_parameters(data, [nl], order=6, workers=2)
+    assert one.basis[0].clearances == two.basis[0].clearances
+    assert one.n_evaluations == two.n_evaluations
+    for a, b in zip(one.estimates, two.estimates):
+        assert np.array_equal(a.profile_objective, b.profile_objective) and a.std == b.std
+
+
 @pytest.mark.parametrize("seed", [0, 3])
 def test_relative_two_sided_stop_noisy(seed):
     """1 % white noise on every output, 16 periods averaged. The noise in the measured
