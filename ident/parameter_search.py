@@ -686,14 +686,35 @@ def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity]
                 "noise in the motion biases gaps upwards by about as much (docs/ident.md, "
                 "'Unknown basis parameters'): average more periods")
              for e in estimates if e.motion_noise_std and e.motion_noise_std > 5e-3 * e.value]
-    if integrated != "displacement" and any(e.unknown.reach for e in estimates):
-        notes.append(f"clearances estimated from {integrated} outputs count from the mean "
-                     "relative position during the test (integrated outputs carry no static "
-                     "position; a stop whose contacts are asymmetric shifts that mean); the "
-                     "contact stiffnesses do not depend on it (docs/ident.md, 'Unknown basis "
-                     "parameters')")
+    if any(e.unknown.reach for e in estimates):   # clearances
+        if integrated != "displacement":
+            notes.append(f"clearances estimated from {integrated} outputs count from the mean "
+                         "relative position during the test (integrated outputs carry no "
+                         "static position; a stop whose contacts are asymmetric shifts that "
+                         "mean); the contact stiffnesses do not depend on it (docs/ident.md, "
+                         "'Unknown basis parameters')")
+        if not correct:
+            notes.extend(_uncorrected_motion_noise(data, integrated))
     return ParameterSearchResult(_resolve(basis, unknowns, values), estimates, v_best, order,
                                  n_eval[0], i_search, {"total": time.perf_counter() - t0}, notes)
+
+
+def _uncorrected_motion_noise(data: FrequencyData, quantity: str) -> list[str]:
+    """Why the clearances could not be corrected for the noise in the motion, when the data
+    may be noisy (nothing for displacement data whose noise is below the record resolution)."""
+    if data.n_periods < 2:
+        return ["one steady period per realisation: the noise in the measured motion cannot be "
+                "estimated, so the clearances were not corrected for it; with noisy data they "
+                "come out too large, by more than their standard deviation says (3-DOF chain, "
+                "1 % output noise, 16 one-period realisations: +47 % to +71 %); record at "
+                "least 2 periods per realisation (docs/ident.md, 'Unknown basis parameters')"]
+    noisy = data.noise_var is not None and (data.noise_resolved is None
+                                            or bool(np.any(data.noise_resolved)))
+    if quantity != "displacement" and noisy:
+        return [f"the noise in the motion integrated from {quantity} outputs is not corrected "
+                "for (the correction needs displacement outputs): with noisy data the "
+                "clearances come out too large (docs/ident.md, 'Unknown basis parameters')"]
+    return []
 
 
 def _parallel_map(fn, items: list, workers: int) -> list:
