@@ -139,7 +139,7 @@ def test_relative_two_sided_stop_noisy(seed):
     assert all(e.noise_corrected for e in res.estimates)
     noise_rel = np.array([e.motion_noise_std / e.value for e in res.estimates])
     assert np.all((noise_rel > 0.02) & (noise_rel < 0.1))    # the motion's noise: 4-5 % of the gaps
-    assert len(res.warnings) == 2 and all("its mean effect was removed" in w
+    assert len(res.warnings) == 2 and all("first-order effect was removed" in w
                                           for w in res.warnings)
     for est in res.estimates:
         assert est.std > 1e-4 * est.value        # noise shows in the uncertainty
