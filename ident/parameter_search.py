@@ -78,6 +78,12 @@ AUTO_CLEARANCE_FRACTION: tuple[float, float] = (0.02, 0.98)
 #: with 1 % noise the Hessian at the final +-2 * step stencil turned indefinite in one of
 #: eight seeds (a refusal); at +-0.5 % every seed gave a positive curvature.
 _CORRECTED_MIN_STEP = 5e-3
+#: Smallest motion noise, relative to a clearance, at which the search corrects for it. The
+#: plain bias grows like the square of that ratio (3-DOF chain: +0.6 % to +7.8 % at 4-5 %),
+#: so below 1 % it is a few tenths of a percent at most, while the correction costs 1.2-1.5x
+#: the plain search (SmallSat, 6 noisy periods: 68-78 fits against 55-63, each with the
+#: noise terms) and changed nothing there (noise 0.33 % of the gaps: 0.02-0.3 %).
+_MIN_CORRECTED_NOISE = 0.01
 
 
 def has_unknown_parameters(basis: Sequence[Nonlinearity]) -> bool:
@@ -479,7 +485,8 @@ def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity]
     block_rows : int, optional
         ``i`` of the decompositions (default :func:`search_block_rows`).
     weighted : bool
-        Noise-weighted decompositions (when the data carry a noise covariance).
+        Noise-weighted decompositions in the noise-corrected stages (when the data carry a
+        noise covariance); the plain model error always uses unweighted ones.
     grid_points : int
         Points of the coarse scan of each continuous interval (log-spaced when it starts
         above 0: a gap is better known relative to itself).
@@ -551,8 +558,12 @@ def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity]
         """The candidate basis and its FNSI fit: one QR + SVD, one B, D solve."""
         resolved = _resolve(basis, unknowns, vals)
         cand = with_basis(data, resolved)
+        # noise-weighted decompositions only under the noise-weighted objective: the plain
+        # model error with weighted ones was slower and rougher where the noise comes from
+        # few periods (SmallSat, 39 outputs, 6 noisy periods: 55-63 fits, 4.2-4.4 s, gaps
+        # -0.16 % / +0.28 %; unweighted: 37-43 fits, 1.1-1.3 s, +0.02 % / +0.03 %)
         dec = fnsi.subspace_decomposition(cand, max_order=order, block_rows=i_search,
-                                          weighted=weighted)
+                                          weighted=weighted and weights[0] is not None)
         a_d, c_d = fnsi.state_matrices(dec, order)
         return resolved, _fixed_state_fit(a_d, c_d, cand, d_zero=d_zero)
 
@@ -578,12 +589,17 @@ def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity]
 
     def set_weights(vals) -> None:
         """``1 / (output noise + motion noise through the model)`` per line and output at
-        ``vals``, held fixed while the parameters move (the expected share of the motion
+        ``vals`` (scaled per output), held fixed while the parameters move (the expected share of the motion
         noise is subtracted, not divided out: a weight that follows the parameters would
         reward candidates that inflate it)."""
         resolved, fit = fit_at(vals)
         variance, bias = noise_model.terms(fit.G_basis, resolved)
-        W = weights[0] = 1.0 / (data.noise_var + variance)
+        # times each output's mean noise variance: the weights follow the motion noise
+        # along the lines but keep the outputs' relative scale of the plain model error
+        # (1/noise across 39 SmallSat outputs made the objective a needle around the gaps,
+        # and the search stopped at -8 % / -11 % with 6 noisy periods)
+        W = np.mean(data.noise_var, axis=0) / (data.noise_var + variance)
+        weights[0] = W
         # the share removed at this point is added back as a constant: the corrected
         # objective then reads like a weighted model error (positive, log-plottable) and
         # has the same minimum and curvature
@@ -619,6 +635,10 @@ def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity]
         values[k] = (_scan_minimum(grid, vs, log=grid[0] > 0) if u.continuous
                      else grid[int(np.argmin(vs))])
     note(f"scan: {_fmt(unknowns, values)}")
+    if correct and cont and all(unknowns[k].reach for k in cont):   # clearances only
+        ratio = max((_motion_noise_std(data, basis[unknowns[k].element]) or 0.0) / values[k]
+                    for k in cont)
+        correct = ratio >= _MIN_CORRECTED_NOISE
     n_lin = (order + (0 if d_zero else data.n_outputs)) * m_e
     dof = max(2 * data.n_lines * data.n_outputs - n_lin - len(cont), 1)
     std = np.full(len(unknowns), np.nan)
@@ -682,7 +702,7 @@ def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity]
              f"({100 * e.motion_noise_std / e.value:.2g} % of it) per sample; "
              + ("its first-order effect was removed; what remains grows with that ratio and "
                 "is not in the standard deviation (3-DOF chain, 4-8 noise seeds: within 2-4 % of "
-                "the gap at 4-7 %, up to +15 % at 8-10 %, up to +26 % at 12-15 %; docs/ident.md, "
+                "the gap at 4-7 %, up to +15 % at 8-10 %, up to +24 % at 12-15 %; docs/ident.md, "
                 "'Unknown basis parameters'): average more periods for a tighter gap"
                 if e.noise_corrected else
                 "noise in the motion biases gaps upwards by about as much (docs/ident.md, "

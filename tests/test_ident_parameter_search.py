@@ -482,6 +482,38 @@ def test_smallsat_39_channels_gaps_auto(quantity):
         assert c["value"] == pytest.approx(truth[c["name"]], rel=coef_tol)
 
 
+@pytest.mark.slow
+def test_smallsat_39_channels_gaps_auto_six_noisy_periods():
+    """The issue's SmallSat-like target with noise: 39 displacement channels, 1 % white noise
+    on each, 6 steady periods. The motion noise is 0.33 % of the gaps (the search then does
+    not correct for it); the plain model error on unweighted decompositions finds them
+    (weighting every output by 1/noise made a needle of the objective: -8 % / -3 %)."""
+    import fnsi_lab
+    from fnsi_lab.daq.sim.smallsat import DEFAULT_CLEARANCES, NC2Z_CONTACT, smallsat_model
+    from fnsi_lab.ident.config import load_ident_config, packaged_config
+
+    model = smallsat_model()
+    fs, n = 1000.0, 8192
+    u = np.asarray(multisine(n, fs, (5, 50), 100.0, n_periods=11, seed=1).signal[0], float)
+    y = sim.simulate(model, u[:, None], fs, periodic=n, quantities=("displacement",)).displacement
+    y = y + 0.01 * np.std(y, axis=0) * np.random.default_rng(0).standard_normal(y.shape)
+    src = {"u": u[:, None], "y": y, "fs": fs, "N": n, "channels": list(model.measured_names),
+           "input_channels": ["F-NC2W-Z"]}
+    cfg = load_ident_config(packaged_config("smallsat39"))      # 5 transient periods
+    (nl,) = cfg.nonlinearities
+    auto = replace(cfg, nonlinearities=(replace(nl, clearances=(0.0, 0.0), unknown=(
+        ParameterSpace("g_neg"), ParameterSpace("g_pos"))),))
+    res = fnsi_lab.identify(src, auto).to_json()
+    (got,) = res["nonlinearities"]
+    # measured over 3 noise seeds: gaps within 0.073 %, coefficients within 0.26 % (known
+    # gaps: within 0.25 %); the issue's targets, 2 % and 0.5 %
+    assert np.allclose(got["clearances"], DEFAULT_CLEARANCES["NC2-Z"], rtol=2e-2)
+    truth = {"NC2-Z:neg": NC2Z_CONTACT["neg"], "NC2-Z:pos": NC2Z_CONTACT["pos"]}
+    for c in res["coefficients"]:
+        assert c["value"] == pytest.approx(truth[c["name"]], rel=5e-3)
+    assert res["parameter_search"]["n_evaluations"] < 60
+
+
 def _stop_recording(tmp_path):
     """A real MCAP recording of the chain with its stop (fnsi-lab acquire), its stop's truth
     and an ident config naming that element with clearances 'auto'."""
