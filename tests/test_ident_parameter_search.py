@@ -108,6 +108,25 @@ def test_parallel_candidates_change_nothing(chain_stop):
         assert np.array_equal(a.profile_objective, b.profile_objective) and a.std == b.std
 
 
+def test_curvature_is_measured_where_the_objective_is_smooth():
+    """A model error that is rough at the scale of Newton's last stencil (a simulator that
+    samples the contacts without band limit) gives an indefinite Hessian there; the
+    uncertainty then comes from a wider stencil, not a refusal as 'flat'."""
+    from fnsi_lab.ident.parameter_search import Unknown, _wider_curvature
+
+    def objectives(points):   # curvature 2 per axis, plus roughness of 1e-9 at 1e-6 scale
+        return [float((p[0] - 1) ** 2 + (p[1] - 2) ** 2 + 1e-9 * np.sin(3e6 * p[0] * p[1]))
+                for p in points]
+
+    unknowns = [Unknown(0, "stop", "g_neg", interval=(0.5, 2.0)),
+                Unknown(0, "stop", "g_pos", interval=(1.0, 4.0))]
+    values = np.array([1.0, 2.0])
+    H = _wider_curvature(objectives, values, [0, 1], unknowns, -np.eye(2))
+    assert np.allclose(H, 2 * np.eye(2), atol=0.02)
+    assert np.array_equal(_wider_curvature(objectives, values, [0, 1], unknowns, np.eye(2)),
+                          np.eye(2))      # a positive one is kept
+
+
 @pytest.mark.parametrize("seed", [0, 3])
 def test_relative_two_sided_stop_noisy(seed):
     """1 % white noise on every output, 16 periods averaged. The noise in the measured
