@@ -590,9 +590,9 @@ def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity]
 
     def set_weights(vals) -> None:
         """``1 / (output noise + motion noise through the model)`` per line and output at
-        ``vals`` (scaled per output), held fixed while the parameters move (the expected share of the motion
-        noise is subtracted, not divided out: a weight that follows the parameters would
-        reward candidates that inflate it)."""
+        ``vals`` (scaled per output), held fixed while the parameters move (the expected
+        share of the motion noise is subtracted, not divided out: a weight that follows the
+        parameters would reward candidates that inflate it)."""
         resolved, fit = fit_at(vals)
         variance, bias = noise_model.terms(fit.G_basis, resolved)
         # times each output's mean noise variance: the weights follow the motion noise
