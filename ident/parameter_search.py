@@ -552,7 +552,7 @@ def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity]
                    and data.motion.noise_spectrum is not None and data.noise_var is not None
                    and (data.noise_resolved is None or np.any(data.noise_resolved)))
     weights: list[np.ndarray | None] = [None]   # (F, p) once the correction is on
-    noise_model = MotionNoise(data, basis) if correct else None
+    noise_model: MotionNoise | None = None   # built once the correction is decided (below)
     weighted_scale = [1.0, 0.0]                 # sum W |Y|^2, sum W bias at the weights' point
 
     def fit_at(vals) -> tuple[tuple[Nonlinearity, ...], _Fit]:
@@ -640,6 +640,8 @@ def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity]
         ratio = max((_motion_noise_std(data, basis[unknowns[k].element]) or 0.0) / values[k]
                     for k in cont)
         correct = ratio >= _MIN_CORRECTED_NOISE
+    if correct:
+        noise_model = MotionNoise(data, basis)
     n_lin = (order + (0 if d_zero else data.n_outputs)) * m_e
     dof = max(2 * data.n_lines * data.n_outputs - n_lin - len(cont), 1)
     std = np.full(len(unknowns), np.nan)
@@ -826,18 +828,12 @@ def _newton(objectives, values, cont, unknowns, dof, *, rel_step=0.02, tolerance
     hessian : ndarray, shape (k, k)
         Of ``V`` in the parameters' units at the last stencil (for the uncertainty).
     """
-    lo = np.array([unknowns[k].interval[0] for k in cont])
-    hi = np.array([unknowns[k].interval[1] for k in cont])
+    lo, hi, f_many = _on_continuous(objectives, values, cont, unknowns)
     x = np.clip(values[cont].astype(float), lo, hi)
     k = x.size
 
-    def full(xx):
-        vals = values.copy()
-        vals[cont] = xx
-        return vals
-
     def f(xx):
-        return float(objectives([full(xx)])[0])
+        return float(f_many([xx])[0])
 
     f0 = f(x)
     h = np.maximum(rel_step * np.abs(x), 1e-4 * (hi - lo))
@@ -845,7 +841,7 @@ def _newton(objectives, values, cont, unknowns, dof, *, rel_step=0.02, tolerance
     for _ in range(max_iterations):
         # central differences, shifted inwards at a bound
         c = np.clip(x, lo + h, hi - h)
-        g, H = _stencil(lambda pts: objectives([full(p) for p in pts]), c, h)
+        g, H = _stencil(f_many, c, h)
         g = g + H @ (x - c)                      # gradient at x from the model around c
         try:
             step = -np.linalg.solve(H, g) if np.all(np.linalg.eigvalsh(H) > 0) else None
@@ -881,6 +877,24 @@ def _newton(objectives, values, cont, unknowns, dof, *, rel_step=0.02, tolerance
     return f0, H
 
 
+def _on_continuous(objectives, values: np.ndarray, cont: Sequence[int],
+                   unknowns: Sequence[Unknown]):
+    """``(lo, hi, f_many)``: the intervals of the continuous parameters ``cont`` and the
+    objective as a function of them alone (the other parameters held at ``values``)."""
+    lo = np.array([unknowns[k].interval[0] for k in cont])
+    hi = np.array([unknowns[k].interval[1] for k in cont])
+
+    def f_many(points):
+        full = []
+        for xx in points:
+            vals = values.copy()
+            vals[cont] = xx
+            full.append(vals)
+        return objectives(full)
+
+    return lo, hi, f_many
+
+
 def _stencil(f_many, c: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Gradient and Hessian of ``f`` at ``c`` from a central finite-difference stencil of
     half-widths ``h`` (its ``2k + 1 + k(k-1)/2`` points evaluated together by ``f_many``)."""
@@ -907,19 +921,12 @@ def _wider_curvature(objectives, values, cont, unknowns, hess: np.ndarray) -> np
     within 0.5-0.9 %, and the search refused them as 'flat'."""
     if np.all(np.isfinite(hess)) and np.all(np.linalg.eigvalsh(hess) > 0):
         return hess
-    lo = np.array([unknowns[k].interval[0] for k in cont])
-    hi = np.array([unknowns[k].interval[1] for k in cont])
+    lo, hi, f_many = _on_continuous(objectives, values, cont, unknowns)
     x = values[cont].astype(float)
-
-    def full(xx):
-        vals = values.copy()
-        vals[cont] = xx
-        return vals
-
     for rel in (5e-3, 1e-2, 2e-2, 5e-2):
         h = np.minimum(rel * np.maximum(np.abs(x), 1e-4 * (hi - lo)), 0.49 * (hi - lo))
         c = np.clip(x, lo + h, hi - h)
-        _, H = _stencil(lambda pts: objectives([full(p) for p in pts]), c, h)
+        _, H = _stencil(f_many, c, h)
         if np.all(np.linalg.eigvalsh(H) > 0):
             return H
     return hess
