@@ -27,12 +27,15 @@ Kinds
     ``h = tanh(delta' / velocity_scale)`` (regularized Coulomb friction; ``c`` is the
     friction force in N).
 
-``offset`` (m) is a known static relative position added to ``delta`` (needed for gaps and
-even polynomials when the outputs are accelerations, whose DC is lost).
+``offset`` (m) is a static relative position added to ``delta`` (needed for gaps and even
+polynomials when the outputs are accelerations, whose DC is lost, or displacement sensors
+with a DC offset). A trilinear stop's offset may be left to the data when both clearances
+are given (``offset: auto``): the two contact points then fix it.
 
 Unknown parameters
 ------------------
-A clearance or an exponent may be left to the data (``clearances: auto`` in the YAML): the
+A clearance, a stop's offset or an exponent may be left to the data (``clearances: auto``
+in the YAML): the
 element then lists it in ``unknown`` (a :class:`ParameterSpace`: search interval or
 candidates), cannot be evaluated, and :mod:`ident.parameter_search` returns the element
 with the estimate filled in (:meth:`Nonlinearity.with_parameters`).
@@ -51,7 +54,7 @@ Kind = Literal["polynomial", "trilinear", "bilinear", "quadratic_damping", "coul
 KINDS: tuple[str, ...] = ("polynomial", "trilinear", "bilinear", "quadratic_damping", "coulomb")
 
 #: Parameters that can be estimated, per kind (``g_neg``/``g_pos``: the two clearances).
-ESTIMABLE: dict[str, tuple[str, ...]] = {"trilinear": ("g_neg", "g_pos"),
+ESTIMABLE: dict[str, tuple[str, ...]] = {"trilinear": ("g_neg", "g_pos", "offset"),
                                          "bilinear": ("clearance",),
                                          "polynomial": ("exponent",)}
 
@@ -62,10 +65,11 @@ class ParameterSpace:
 
     Parameters
     ----------
-    parameter : {'g_neg', 'g_pos', 'clearance', 'exponent'}
+    parameter : {'g_neg', 'g_pos', 'clearance', 'offset', 'exponent'}
     interval : (float, float), optional
-        Continuous search interval (clearances in the outputs' length unit); None: from the
-        recorded motion (clearances) or the default exponent range.
+        Continuous search interval (clearances and offsets in the outputs' length unit; an
+        offset's may be signed); None: from the recorded motion (clearances, offset) or the
+        default exponent range.
     candidates : tuple of float, optional
         Discrete values to choose from (exponents); exclusive with ``interval``.
     """
@@ -77,9 +81,10 @@ class ParameterSpace:
     def __post_init__(self) -> None:
         if self.interval is not None:
             lo, hi = (float(v) for v in self.interval)
-            if not 0 <= lo < hi:
+            signed = self.parameter == "offset"
+            if not ((signed or 0 <= lo) and lo < hi):
                 raise IdentError(f"search interval of {self.parameter} must be [low, high] with "
-                                 f"0 <= low < high, got {list(self.interval)}")
+                                 f"{'' if signed else '0 <= '}low < high, got {list(self.interval)}")
             object.__setattr__(self, "interval", (lo, hi))
         if self.candidates is not None:
             c = tuple(sorted({float(v) for v in self.candidates}))
@@ -155,15 +160,26 @@ class Nonlinearity:
         for sp in self.unknown:
             if sp.parameter not in allowed:
                 raise IdentError(f"nonlinearity {self.name!r}: {sp.parameter!r} cannot be "
-                                 f"estimated for a {self.kind} element (estimable: {list(allowed)})")
+                                 f"estimated for a {self.kind} element (estimable: {list(allowed)})"
+                                 + ("; a one-sided stop's offset and clearance are one "
+                                    "parameter: leave the clearance to the data"
+                                    if (self.kind, sp.parameter) == ("bilinear", "offset") else ""))
+        left = {sp.parameter for sp in self.unknown}
+        if "offset" in left and left & {"g_neg", "g_pos"}:
+            # the offset moves both contact points, a clearance one of them: from the two
+            # contact points the data give, the offset follows only with both gaps known
+            raise IdentError(f"nonlinearity {self.name!r}: an offset left to the data needs both "
+                             "clearances given; or give the offset (0: the clearances then "
+                             "count from the recorded zero) and leave the clearances to the data")
 
     def parameter(self, name: str) -> float:
-        """Current value of an estimable parameter (``g_neg``, ``g_pos``, ``clearance``, ``exponent``)."""
+        """Current value of an estimable parameter (``g_neg``, ``g_pos``, ``clearance``,
+        ``offset``, ``exponent``)."""
         if name == "g_neg":
             return self.clearances[0]
         if name == "g_pos":
             return self.clearances[1]
-        if name in ("clearance", "exponent"):
+        if name in ("clearance", "offset", "exponent"):
             return float(getattr(self, name))
         raise IdentError(f"nonlinearity {self.name!r}: no parameter {name!r}")
 

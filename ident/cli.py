@@ -127,13 +127,13 @@ def _print_parameter_summary(res: dict, out=None) -> None:
           f"{search['n_evaluations']} fits, {search['timings_s']['total']:.2f} s):", file=out)
     for nl in res["nonlinearities"]:
         for par, ob in (nl.get("objective") or {}).items():
-            value = (nl["exponent"] if par == "exponent" else
+            value = (nl[par] if par in ("exponent", "offset") else
                      nl["clearances"][0 if par in ("g_neg", "clearance") else 1])
             std = ob.get("std")
             unc = f" +- {std:.2g}" if std is not None and np.isfinite(std) else ""
             err = ""
             errs = nl.get("clearance_error_percent")
-            if errs and par != "exponent":
+            if errs and par not in ("exponent", "offset"):
                 e = errs[0 if par in ("g_neg", "clearance") else 1]
                 err = f" (error {e:+.3f} % vs the recording's truth)" if e is not None else ""
             print(f"  {nl['name']} {par} = {value:.6g}{unc}{err}", file=out)

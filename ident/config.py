@@ -153,6 +153,26 @@ def _clearance_spec(sec: Section, key: str, v: Any, parameter: str) -> tuple[flo
                     f"[low, high], got {v!r}", fix="e.g. 1.3, auto or [1.0, 2.0]")
 
 
+def _offset_spec(sec: Section, kind: str) -> tuple[float, ParameterSpace | None]:
+    """A static offset: a signed distance; for a trilinear stop also ``auto`` (search where
+    both stops are in contact) or a search interval ``[low, high]`` (signed)."""
+    v = sec.raw("offset", 0.0)
+    if v == "auto" or isinstance(v, list):
+        if kind != "trilinear":
+            raise sec.error("offset", f"only a trilinear stop's offset can be left to the data, "
+                            f"got {v!r} for a {kind} element",
+                            fix=("leave the clearance to the data instead (a one-sided stop's "
+                                 "offset and clearance are one parameter)" if kind == "bilinear"
+                                 else "give the offset as a number"))
+        if v == "auto":
+            return 0.0, ParameterSpace("offset")
+        if len(v) == 2 and all(_is_number(x) for x in v) and v[0] < v[1]:
+            return 0.0, ParameterSpace("offset", interval=(float(v[0]), float(v[1])))
+        raise sec.error("offset", f"search interval {v!r} must be [low, high] with low < high",
+                        fix="e.g. [-0.5, 0.5] (same length unit as the outputs)")
+    return sec.number("offset", 0.0), None
+
+
 def _nonlinearity(sec: Section, index: int) -> Nonlinearity:
     name = sec.string("name")
     kind = sec.string("kind", choices=KINDS)
@@ -206,7 +226,14 @@ def _nonlinearity(sec: Section, index: int) -> Nonlinearity:
         kw["side"] = sec.string("side", "pos", choices=("pos", "neg"))
     elif kind == "coulomb":
         kw["velocity_scale"] = sec.number("velocity_scale", 1e-3, positive=True)
-    kw["offset"] = sec.number("offset", 0.0)
+    kw["offset"], space = _offset_spec(sec, kind)
+    if space is not None:
+        if unknown:
+            raise sec.error("offset", "an offset left to the data needs both clearances given "
+                            "(the two contact points fix the offset only when the gaps are known)",
+                            fix="give both clearances, or drop 'offset: auto': the clearances "
+                            "then count from the recorded zero")
+        unknown.append(space)
     kw["unknown"] = tuple(unknown)
     n_coef = 2 if kind == "trilinear" else 1
     if sec.has("truth"):

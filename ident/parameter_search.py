@@ -1,4 +1,4 @@
-"""Basis parameters from the data: clearances of stops and exponents of polynomials.
+"""Basis parameters from the data: clearances and offsets of stops, exponents of polynomials.
 
 A stop's gap or a polynomial's exponent enters FNSI only through the extended input
 ``E = [P; H(theta)]``; for a given ``theta`` the rest is the usual linear problem. The
@@ -15,8 +15,8 @@ is *not* enough: the identified linear dynamics absorb a wrong gap (3-DOF chain:
 every candidate pays its own decomposition; with 6 block rows that is about 40-80 ms for
 the 39-channel SmallSat.
 
-Continuous parameters (clearances, a signed exponent): a coarse scan of each interval (one
-parameter at a time, log-spaced), then Newton steps on a quadratic model of ``V`` from a
+Continuous parameters (clearances, a stop's offset, a signed exponent): a coarse scan of
+each interval (one parameter at a time, log-spaced; linear for an offset), then Newton steps on a quadratic model of ``V`` from a
 central finite-difference stencil. ``V`` is close to quadratic near its minimum while the
 residual vector is strongly curved, so Gauss-Newton on the residual crawled (SmallSat: 20
 iterations without reaching the minimum) where Newton on ``V`` converged in 4-5. The
@@ -101,13 +101,16 @@ class Unknown:
         Index of the element in the basis.
     name : str
         Element name.
-    parameter : {'g_neg', 'g_pos', 'clearance', 'exponent'}
+    parameter : {'g_neg', 'g_pos', 'clearance', 'offset', 'exponent'}
     interval : (float, float) or None
-        Continuous search interval (clearances in the outputs' length unit).
+        Continuous search interval (clearances and offsets in the outputs' length unit).
     candidates : tuple of float or None
         Discrete values.
     reach : float or None
         Largest recorded excursion of the element's argument towards the stop (clearances).
+    scale : float or None
+        Offsets: the length that steps and standard deviations are relative to (the smaller
+        clearance; an offset can be 0). None: the parameter's own value.
     """
 
     element: int
@@ -116,6 +119,7 @@ class Unknown:
     interval: tuple[float, float] | None = None
     candidates: tuple[float, ...] | None = None
     reach: float | None = None
+    scale: float | None = None
 
     @property
     def label(self) -> str:
@@ -125,6 +129,20 @@ class Unknown:
     @property
     def continuous(self) -> bool:
         return self.candidates is None
+
+    @property
+    def is_length(self) -> bool:
+        """A clearance or an offset (moved by the noise in the measured motion)."""
+        return self.parameter in ("g_neg", "g_pos", "clearance", "offset")
+
+    @property
+    def log_spaced(self) -> bool:
+        """Scanned on a log scale: a positive interval of a parameter known relative to itself."""
+        return self.parameter != "offset" and self.interval is not None and self.interval[0] > 0
+
+    def magnitude(self, value):
+        """``|value|``, or the offset's length scale where that is larger (array-friendly)."""
+        return np.maximum(np.abs(value), self.scale or 0.0)
 
 
 @dataclass
@@ -236,17 +254,23 @@ def search_spaces(data: FrequencyData, basis: Sequence[Nonlinearity]) -> list[Un
     """The free parameters of ``basis`` with their search spaces resolved on the data.
 
     ``auto`` clearances are searched over ``AUTO_CLEARANCE_FRACTION`` of the largest
-    excursion towards that side; ``auto`` exponents over ``AUTO_EXPONENTS`` (unsigned) or
-    ``AUTO_SIGNED_EXPONENT_INTERVAL`` (signed).
+    excursion towards that side; an ``auto`` offset of a trilinear stop over the offsets at
+    which the recorded motion touches both stops (:func:`_offset_space`); ``auto``
+    exponents over ``AUTO_EXPONENTS`` (unsigned) or ``AUTO_SIGNED_EXPONENT_INTERVAL``
+    (signed).
 
     Raises
     ------
     NotIdentifiableError
-        The motion never reaches a stop's search interval (the stop is never in contact).
+        The motion never reaches a stop's search interval (the stop is never in contact),
+        or no offset puts both stops of a trilinear element in contact.
     """
     out = []
     for i, nl in enumerate(basis):
         for sp in nl.unknown:
+            if sp.parameter == "offset":
+                out.append(_offset_space(i, nl, sp.interval, _argument(nl, data) - nl.offset))
+                continue
             if sp.parameter == "exponent":
                 if sp.candidates is not None:
                     out.append(Unknown(i, nl.name, "exponent", candidates=sp.candidates))
@@ -273,6 +297,39 @@ def search_spaces(data: FrequencyData, basis: Sequence[Nonlinearity]) -> list[Un
             out.append(Unknown(i, nl.name, sp.parameter,
                                interval=(float(lo), float(min(hi, reach))), reach=reach))
     return out
+
+
+def _offset_space(element: int, nl: Nonlinearity, interval: tuple[float, float] | None,
+                  motion: np.ndarray) -> Unknown:
+    """The search space of a trilinear stop's offset (both clearances known).
+
+    ``motion`` is ``L^T q`` without offset. The stops are touched where
+    ``motion + offset`` passes ``g_pos`` or ``-g_neg``, so both are touched for offsets in
+    ``[g_pos - max(motion), -g_neg - min(motion)]``. ``auto`` searches the part of it where
+    the joint at rest touches neither stop, ``(-g_neg, g_pos)``, less 2 % of its width at
+    each end. Beyond that one stop is in contact most of the time, its column becomes
+    nearly a copy of the motion and the model error falls again (3-DOF chain, noise-free
+    accelerations: 4e-6 at 10 clearances against 2e-6 at the true offset, with a hump of
+    1e-3 in between); an offset outside needs an explicit interval (a displacement
+    sensor's DC offset larger than the clearances).
+    """
+    g_neg, g_pos = nl.clearances
+    lo_both, hi_both = g_pos - float(np.max(motion)), -g_neg - float(np.min(motion))
+    lo, hi = max(lo_both, -g_neg), min(hi_both, g_pos)
+    span = float(np.max(motion) - np.min(motion))
+    if interval is None:
+        if not hi > lo:
+            raise NotIdentifiableError(
+                f"nonlinearity {nl.name!r}: the data cannot tell offset: the recorded relative "
+                f"motion spans {span:.4g}, too little for both stops (clearances "
+                f"{g_neg:.4g}, {g_pos:.4g}) to be touched from a position between them; give "
+                "the offset, a search interval [low, high] for it, or excite harder")
+        width = hi - lo
+        interval = (lo + AUTO_CLEARANCE_FRACTION[0] * width, lo + AUTO_CLEARANCE_FRACTION[1] * width)
+    positive = [g for g in (g_neg, g_pos) if g > 0]
+    scale = min(positive) if positive else 0.5 * span
+    return Unknown(element, nl.name, "offset", interval=(float(interval[0]), float(interval[1])),
+                   scale=float(scale))
 
 
 def _resolve(basis: Sequence[Nonlinearity], unknowns: Sequence[Unknown],
@@ -633,12 +690,12 @@ def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity]
         if np.all(~np.isfinite(vs)):
             raise NotIdentifiableError(f"nonlinearity {u.name!r}: no candidate {u.parameter} "
                                        "gives a model on these data")
-        values[k] = (_scan_minimum(grid, vs, log=grid[0] > 0) if u.continuous
+        values[k] = (_scan_minimum(grid, vs, log=u.log_spaced) if u.continuous
                      else grid[int(np.argmin(vs))])
     note(f"scan: {_fmt(unknowns, values)}")
-    if correct and cont and all(unknowns[k].reach for k in cont):   # clearances only
-        ratio = max((_motion_noise_std(data, basis[unknowns[k].element]) or 0.0) / values[k]
-                    for k in cont)
+    if correct and cont and all(unknowns[k].is_length for k in cont):   # clearances, offsets
+        ratio = max((_motion_noise_std(data, basis[unknowns[k].element]) or 0.0)
+                    / unknowns[k].magnitude(values[k]) for k in cont)
         correct = ratio >= _MIN_CORRECTED_NOISE
     if correct:
         noise_model = MotionNoise(data, basis)
@@ -684,7 +741,7 @@ def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity]
         grid, vs = scans[k]
         if u.continuous:
             lo, hi = u.interval
-            local = values[k] * (1 + np.array(profile_offsets))
+            local = values[k] + u.magnitude(values[k]) * np.array(profile_offsets)
             local = local[(local >= lo) & (local <= hi)]
             lv = objectives([_fill_one(values, k, g) for g in local])
             pv = np.concatenate([grid, local, [values[k]]])
@@ -699,7 +756,7 @@ def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity]
         est = ParameterEstimate(u, float(values[k]),
                                 float(std[k]) if u.continuous else float("nan"),
                                 np.asarray(pv, float)[srt], np.asarray(po, float)[srt], margin,
-                                _motion_noise_std(data, basis[u.element]) if u.reach else None,
+                                _motion_noise_std(data, basis[u.element]) if u.is_length else None,
                                 noise_corrected=correct and u.continuous)
         _refuse_if_unclear(est, basis[u.element], max_relative_std, min_margin)
         estimates.append(est)
@@ -713,7 +770,8 @@ def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity]
                 if e.noise_corrected else
                 "noise in the motion biases gaps upwards by about as much (docs/ident.md, "
                 "'Unknown basis parameters'): average more periods")
-             for e in estimates if e.motion_noise_std and e.motion_noise_std > 5e-3 * e.value]
+             for e in estimates
+             if e.unknown.reach and e.motion_noise_std and e.motion_noise_std > 5e-3 * e.value]
     if any(e.unknown.reach for e in estimates):   # clearances
         if integrated != "displacement":
             notes.append(f"clearances estimated from {integrated} outputs count from the mean "
@@ -779,10 +837,11 @@ def _scan_minimum(grid: np.ndarray, vs: np.ndarray, *, log: bool) -> float:
 
 
 def _initial(u: Unknown) -> float:
-    """Starting value: geometric centre of the interval, or 3 (a cubic) among the candidates."""
+    """Starting value: centre of the interval (geometric if log-spaced), or 3 (a cubic)
+    among the candidates."""
     if u.continuous:
         lo, hi = u.interval
-        return float(np.sqrt(lo * hi)) if lo > 0 else 0.5 * (lo + hi)
+        return float(np.sqrt(lo * hi)) if u.log_spaced else 0.5 * (lo + hi)
     return 3.0 if 3.0 in u.candidates else float(u.candidates[len(u.candidates) // 2])
 
 
@@ -790,7 +849,7 @@ def _grid(u: Unknown, n: int) -> np.ndarray:
     if not u.continuous:
         return np.asarray(u.candidates, float)
     lo, hi = u.interval
-    return np.geomspace(lo, hi, n) if lo > 0 else np.linspace(lo, hi, n)
+    return np.geomspace(lo, hi, n) if u.log_spaced else np.linspace(lo, hi, n)
 
 
 def _fill_one(values: np.ndarray, k: int, v: float) -> np.ndarray:
@@ -807,8 +866,9 @@ def _newton(objectives, values, cont, unknowns, dof, *, rel_step=0.02, tolerance
             trust=0.3, max_iterations=8, noise_level=None, min_rel_step=0.0):
     """Minimise ``V`` over the continuous parameters by Newton steps on a quadratic model.
 
-    Stops when every step is below ``tolerance`` relative to the value or below a tenth of
-    the value's standard deviation (``dof``: residual degrees of freedom; the residual level
+    Stops when every step is below ``tolerance`` relative to the value (an offset: to its
+    length scale, :meth:`Unknown.magnitude`; likewise below) or below a tenth of the
+    value's standard deviation (``dof``: residual degrees of freedom; the residual level
     is ``V`` itself, or ``noise_level(values)`` when ``V`` has the noise's share removed).
     The stencil never narrows below ``min_rel_step`` of the values: the noise correction
     moves in small jumps as samples enter or leave contact, and a narrower stencil would
@@ -828,7 +888,7 @@ def _newton(objectives, values, cont, unknowns, dof, *, rel_step=0.02, tolerance
     hessian : ndarray, shape (k, k)
         Of ``V`` in the parameters' units at the last stencil (for the uncertainty).
     """
-    lo, hi, f_many = _on_continuous(objectives, values, cont, unknowns)
+    lo, hi, f_many, magnitude = _on_continuous(objectives, values, cont, unknowns)
     x = np.clip(values[cont].astype(float), lo, hi)
     k = x.size
 
@@ -836,7 +896,7 @@ def _newton(objectives, values, cont, unknowns, dof, *, rel_step=0.02, tolerance
         return float(f_many([xx])[0])
 
     f0 = f(x)
-    h = np.maximum(rel_step * np.abs(x), 1e-4 * (hi - lo))
+    h = np.maximum(rel_step * magnitude(x), 1e-4 * (hi - lo))
     H = np.full((k, k), np.nan)
     for _ in range(max_iterations):
         # central differences, shifted inwards at a bound
@@ -852,7 +912,7 @@ def _newton(objectives, values, cont, unknowns, dof, *, rel_step=0.02, tolerance
         # trust region: stay in the basin of the scan (with noise, V can be lower still where
         # the gaps are so small that the stop columns become a linear copy of the noisy
         # outputs; one unbounded step from the scan's best point landed there on the chain)
-        limit = np.maximum(trust * np.abs(x), 4 * h)
+        limit = np.maximum(trust * magnitude(x), 4 * h)
         step = np.clip(np.clip(step, -limit, limit) + x, lo, hi) - x
         for _ in range(4):                       # backtrack if the model overshot
             f1 = f(x + step)
@@ -869,9 +929,9 @@ def _newton(objectives, values, cont, unknowns, dof, *, rel_step=0.02, tolerance
             level = noise_level(vals)
         with np.errstate(divide="ignore", invalid="ignore"):
             sd = np.sqrt(np.abs(2.0 * level / dof / np.diag(H)))
-        if np.all((np.abs(step) <= tolerance * np.abs(x)) | (np.abs(step) <= 0.1 * sd)):
+        if np.all((np.abs(step) <= tolerance * magnitude(x)) | (np.abs(step) <= 0.1 * sd)):
             break
-        h = np.clip(2 * np.abs(step), np.maximum(1e-5 * (hi - lo), min_rel_step * np.abs(x)),
+        h = np.clip(2 * np.abs(step), np.maximum(1e-5 * (hi - lo), min_rel_step * magnitude(x)),
                     h)                                     # narrow towards the minimum
     values[cont] = x
     return f0, H
@@ -879,10 +939,14 @@ def _newton(objectives, values, cont, unknowns, dof, *, rel_step=0.02, tolerance
 
 def _on_continuous(objectives, values: np.ndarray, cont: Sequence[int],
                    unknowns: Sequence[Unknown]):
-    """``(lo, hi, f_many)``: the intervals of the continuous parameters ``cont`` and the
-    objective as a function of them alone (the other parameters held at ``values``)."""
+    """``(lo, hi, f_many, magnitude)``: the intervals of the continuous parameters ``cont``,
+    the objective as a function of them alone (the other parameters held at ``values``) and
+    their magnitudes (:meth:`Unknown.magnitude`) as a function of their values."""
     lo = np.array([unknowns[k].interval[0] for k in cont])
     hi = np.array([unknowns[k].interval[1] for k in cont])
+
+    def magnitude(x):
+        return np.array([unknowns[k].magnitude(v) for k, v in zip(cont, x)], float)
 
     def f_many(points):
         full = []
@@ -892,7 +956,7 @@ def _on_continuous(objectives, values: np.ndarray, cont: Sequence[int],
             full.append(vals)
         return objectives(full)
 
-    return lo, hi, f_many
+    return lo, hi, f_many, magnitude
 
 
 def _stencil(f_many, c: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -921,10 +985,10 @@ def _wider_curvature(objectives, values, cont, unknowns, hess: np.ndarray) -> np
     within 0.5-0.9 %, and the search refused them as 'flat'."""
     if np.all(np.isfinite(hess)) and np.all(np.linalg.eigvalsh(hess) > 0):
         return hess
-    lo, hi, f_many = _on_continuous(objectives, values, cont, unknowns)
+    lo, hi, f_many, magnitude = _on_continuous(objectives, values, cont, unknowns)
     x = values[cont].astype(float)
     for rel in (5e-3, 1e-2, 2e-2, 5e-2):
-        h = np.minimum(rel * np.maximum(np.abs(x), 1e-4 * (hi - lo)), 0.49 * (hi - lo))
+        h = np.minimum(rel * np.maximum(magnitude(x), 1e-4 * (hi - lo)), 0.49 * (hi - lo))
         c = np.clip(x, lo + h, hi - h)
         _, H = _stencil(f_many, c, h)
         if np.all(np.linalg.eigvalsh(H) > 0):
@@ -945,10 +1009,11 @@ def _refuse_if_unclear(est: ParameterEstimate, nl: Nonlinearity, max_relative_st
                 f"{what}: the model error is smallest at the edge of the search interval "
                 f"[{lo:.4g}, {hi:.4g}] ({est.value:.4g}), so the value is outside it or the "
                 f"element barely acts; {fix}")
-        if not est.std <= max_relative_std * abs(est.value):
+        if not est.std <= max_relative_std * u.magnitude(est.value):
+            of = "the smaller clearance" if u.scale else "the value"
             raise NotIdentifiableError(
                 f"{what}: the model error is flat around {est.value:.4g} (std {est.std:.3g}, "
-                f"more than {100 * max_relative_std:g} % of the value); {fix}")
+                f"more than {100 * max_relative_std:g} % of {of}); {fix}")
         if not est.margin >= min_margin:
             # an end of the interval fits about as well: no single minimum (5-DOF chain seen
             # by 2 outputs at 40 dB: the model error jumped by 10^4 between scan points)

@@ -832,9 +832,11 @@ def offsets_report(U4: np.ndarray, Y4: np.ndarray, input_names: Sequence[str],
     Warns
     -----
     IdentWarning
-        A gap element reads an output whose mean exceeds 10 % of its smallest clearance.
+        A gap element with a given offset reads an output whose mean exceeds 10 % of its
+        smallest clearance.
     """
-    gaps = [nl for nl in basis if nl.kind in ("trilinear", "bilinear")]
+    gaps = [nl for nl in basis if nl.kind in ("trilinear", "bilinear")
+            and "offset" not in {sp.parameter for sp in nl.unknown}]
     if remove is None:
         # an odd element driven by an odd multisine puts nothing at DC (odd + odd - odd
         # lines are odd): any DC there is a sensor or amplifier offset, which in y^3 would
@@ -866,8 +868,18 @@ def offsets_report(U4: np.ndarray, Y4: np.ndarray, input_names: Sequence[str],
                     warnings.warn(f"output {ch!r} has a DC offset of {off:.3g} "
                                   f"({100 * off / min(clear):.0f} % of the smallest clearance "
                                   f"of {nl.name!r}): clearances count from the static "
-                                  "position; remove the sensor offset from the data or give "
-                                  "the element an 'offset'", IdentWarning, stacklevel=3)
+                                  "position; remove the sensor offset from the data, give "
+                                  "the element an 'offset' or, for a trilinear stop with "
+                                  "known clearances, 'offset: auto'", IdentWarning,
+                                  stacklevel=3)
+    if output_quantity != "displacement":
+        for nl in gaps:
+            if nl.kind == "trilinear" and nl.offset == 0 and not nl.unknown:
+                warnings.warn(f"{nl.name!r} reads {output_quantity} outputs, integrated without "
+                              "their static position: its clearances count from the mean "
+                              "position during the test, which an asymmetric stop moves away "
+                              "from the rest position (3-DOF chain: contact stiffness -12 %); "
+                              "give 'offset: auto' to estimate it", IdentWarning, stacklevel=3)
     return {"removed": remove, "channels": chans, "note": note}, remove
 
 

@@ -478,13 +478,15 @@ def _nonlinearity_json(nl: Nonlinearity, search: Any = None, truth: Mapping | No
     pars: tuple[str, ...] = ()
     if nl.kind == "trilinear":
         pars = ("g_neg", "g_pos")
-        out.update(clearances=list(nl.clearances), clearance_std=[std(p) for p in pars])
+        out.update(clearances=list(nl.clearances), clearance_std=[std(p) for p in pars],
+                   offset=nl.offset, offset_std=std("offset"))
     elif nl.kind == "bilinear":
         pars = ("clearance",)
-        out.update(clearances=[nl.clearance], clearance_std=[std("clearance")], side=nl.side)
+        out.update(clearances=[nl.clearance], clearance_std=[std("clearance")], side=nl.side,
+                   offset=nl.offset)
     elif nl.kind == "polynomial":
         out.update(exponent=nl.exponent, exponent_std=std("exponent"), signed=nl.signed,
-                   argument=nl.argument)
+                   argument=nl.argument, offset=nl.offset)
     out["estimated"] = [p for p in ESTIMABLE.get(nl.kind, ()) if p in est]
     if est:
         out["objective"] = {p: {"values": e.profile_values, "relative_model_error":
