@@ -18,8 +18,12 @@ damping within 10 %) and the physical-classified modes that match no true mode (
 Usage::
 
     python bench/robustness.py [--cases duffing,chain5-stop] [--snr-db 40] [--write]
+    python bench/robustness.py --clearances-auto [--seeds 4]
 
 ``--write`` puts the table into the "Robustness" section of ``bench/RESULTS.md``.
+``--clearances-auto`` runs the cases with a stop twice, clearances given and ``auto``
+(noise-free, and at ``--snr-db`` with ``--seeds`` noise seeds), and prints the coefficient
+errors, the gap errors and the time ratio (issue 15; bench/RESULTS.md).
 """
 
 from __future__ import annotations
@@ -29,7 +33,7 @@ import os
 import platform
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 for _v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -43,7 +47,8 @@ sys.path.insert(0, str(ROOT))
 from fnsi_lab.daq.multisine import multisine  # noqa: E402
 from fnsi_lab.daq.sim.model import StructuralModel  # noqa: E402
 from fnsi_lab.daq.sim.nonlinear import NonlinearElement  # noqa: E402
-from fnsi_lab.ident.basis import Nonlinearity  # noqa: E402
+from fnsi_lab.ident.basis import Nonlinearity, ParameterSpace  # noqa: E402
+from fnsi_lab.ident.errors import NotIdentifiableError  # noqa: E402
 from fnsi_lab.ident.config import IdentConfig, InputSpec  # noqa: E402
 from fnsi_lab.ident.io import input_from_arrays  # noqa: E402
 from fnsi_lab.ident.options import AutoOptions  # noqa: E402
@@ -261,8 +266,8 @@ def basis_of(case: Case, displacement: np.ndarray | None = None) -> list[Nonline
 
 
 def evaluate(case: Case, snr_db: float | None, *, steady_periods: int, transient: int = 4,
-             noise_seed: int = 11, options: dict | None = None, data_options: dict | None = None
-             ) -> dict:
+             noise_seed: int = 11, options: dict | None = None, data_options: dict | None = None,
+             clearances_auto: bool = False) -> dict:
     P = transient + steady_periods
     u, y = record(case, P)
     p = len(case.measured)
@@ -274,6 +279,9 @@ def evaluate(case: Case, snr_db: float | None, *, steady_periods: int, transient
         y += rng.standard_normal(y.shape) * rms * 10 ** (-snr_db / 20)
     names = [f"q{i}" for i in case.measured]
     basis = basis_of(case, disp)
+    if clearances_auto:   # the static position stays given (velocity/acceleration outputs)
+        basis = [replace(nl, unknown=(ParameterSpace("g_neg"), ParameterSpace("g_pos")))
+                 if nl.kind == "trilinear" else nl for nl in basis]
     # the one entry point, as `fnsi-lab ident --auto` runs it
     inp = input_from_arrays({"u": u, "y": y, "fs": case.fs, "N": case.N,
                              "channels": np.array(names), "input_channels": np.array(["F"]),
@@ -283,7 +291,9 @@ def evaluate(case: Case, snr_db: float | None, *, steady_periods: int, transient
                       transient_periods=transient, output_quantity=case.quantity,
                       auto=AutoOptions.from_dict(options or {}), **(data_options or {}))
     t0 = time.perf_counter()
-    res = identify_input(inp, cfg, orders=range(case.orders[0], case.orders[1] + 1)).auto
+    ident = identify_input(inp, cfg, orders=range(case.orders[0], case.orders[1] + 1))
+    res = ident.auto
+    stops = [nl.clearances for nl in ident.session.config.nonlinearities if nl.kind == "trilinear"]
     elapsed = time.perf_counter() - t0
     final = res.coefficients["reduced" if res.final == "reduced" else "full"]
     err = max(abs(c["error_percent"]) for c in final)
@@ -300,7 +310,8 @@ def evaluate(case: Case, snr_db: float | None, *, steady_periods: int, transient
             "selected": res.selected_order, "ic_order": res.ic_order, "final": res.final,
             "final_order": res.final_model.order, "coef_err_pct": err,
             "modes_true": int(inb.sum()), "modes_found": int(found), "false_modes": int(false),
-            "confidence": res.confidence["level"], "seconds": elapsed, "note": case.note}
+            "confidence": res.confidence["level"], "seconds": elapsed, "note": case.note,
+            "clearances": stops[0] if stops else None}
 
 
 def table(rows: list[dict]) -> list[str]:
@@ -327,6 +338,28 @@ def write_results(lines: list[str]) -> None:
     path.write_text(text.rstrip() + "\n\n" + "\n".join(lines) + "\n")
 
 
+def clearances_auto_table(sel: list, snr_db: float, periods: int, seeds: int) -> None:
+    """Clearances given vs ``auto`` through the robust pipeline, printed as a table."""
+    print("| case | noise | seed | coefficient error, given | `auto` | gaps `auto` | time auto / given |")
+    print("|---|---|---|---|---|---|---|")
+    for case in sel:
+        truth = [e.clearances for e in case.elements if e.kind == "trilinear"][0]
+        runs = [(None, 1, 11)] + [(snr_db, periods, 11 + k) for k in range(seeds)]
+        for snr, P, seed in runs:
+            known = evaluate(case, snr, steady_periods=P, noise_seed=seed)
+            try:
+                auto = evaluate(case, snr, steady_periods=P, noise_seed=seed, clearances_auto=True)
+                gaps = " / ".join(f"{100 * (g / t - 1):+.2f} %"
+                                  for g, t in zip(auto["clearances"], truth))
+                cells = (f"{auto['coef_err_pct']:.3f} %", gaps,
+                         f"{auto['seconds'] / known['seconds']:.1f}x")
+            except NotIdentifiableError as exc:
+                cells = ("refused", str(exc).split(": ", 2)[-1][:60], "")
+            print(f"| {case.name} | {'none' if snr is None else f'{snr:g} dB'} | "
+                  f"{seed if snr is not None else ''} | {known['coef_err_pct']:.3f} % | "
+                  + " | ".join(cells) + " |", flush=True)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--cases", default=None, help="comma list (default: all)")
@@ -337,6 +370,9 @@ def main() -> int:
     ap.add_argument("--data", default=None, metavar="JSON",
                     help='ident config keys, e.g. \'{"time_base": "bilinear"}\'')
     ap.add_argument("--write", action="store_true", help="write bench/RESULTS.md")
+    ap.add_argument("--clearances-auto", action="store_true",
+                    help="stop cases: clearances given vs auto (prints, never writes)")
+    ap.add_argument("--seeds", type=int, default=4, help="noise seeds of --clearances-auto")
     a = ap.parse_args()
     import json
 
@@ -346,6 +382,10 @@ def main() -> int:
     if a.cases:
         want = set(a.cases.split(","))
         sel = [c for c in sel if c.name in want]
+    if a.clearances_auto:
+        clearances_auto_table([c for c in sel if any(e.kind == "trilinear" for e in c.elements)],
+                              a.snr_db, a.periods, a.seeds)
+        return 0
     rows = []
     for case in sel:
         for snr, P in ((None, 1), (a.snr_db, a.periods)):

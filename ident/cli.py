@@ -123,8 +123,11 @@ def _print_parameter_summary(res: dict, out=None) -> None:
     search = res.get("parameter_search")
     if not search:
         return
+    misfit = search.get("noise_misfit")
+    fit = (f"; residual {misfit:.3g}x the noise" if misfit is not None and np.isfinite(misfit)
+           else "")
     print(f"basis parameters from the data (order {search['order']}, "
-          f"{search['n_evaluations']} fits, {search['timings_s']['total']:.2f} s):", file=out)
+          f"{search['n_evaluations']} fits, {search['timings_s']['total']:.2f} s{fit}):", file=out)
     for nl in res["nonlinearities"]:
         for par, ob in (nl.get("objective") or {}).items():
             value = (nl[par] if par in ("exponent", "offset") else

@@ -206,12 +206,14 @@ def default_config(inp: IdentInput, *, harmonics: float = 1.0,
 
 
 def prepare_session(inp: IdentInput, cfg: IdentConfig, *, search_order: int | None = None,
-                    progress: Any = None) -> IdentSession:
+                    select_search_order: bool = False, progress: Any = None) -> IdentSession:
     """Select the configured channels and build the frequency data.
 
     Basis parameters left to the data (``clearances: auto``, ``exponent: auto``...) are
     estimated here, before any identification (:mod:`ident.parameter_search`), at
-    ``search_order`` (default the config's ``order``, else 30).
+    ``search_order`` (default the config's ``order``, else 30); with
+    ``select_search_order`` that is the largest order, and the information criterion at
+    the coarse scan's estimate picks the order of the search.
 
     Raises
     ------
@@ -262,7 +264,7 @@ def prepare_session(inp: IdentInput, cfg: IdentConfig, *, search_order: int | No
         bar = Progress(2, "basis parameters", enabled=bool(progress))
         search = estimate_basis_parameters(
             data, cfg.nonlinearities, order=int(search_order or cfg.order or DEFAULT_SEARCH_ORDER),
-            d_zero=cfg.d_zero_for(quantity), weighted=weighted,
+            d_zero=cfg.d_zero_for(quantity), weighted=weighted, select_order=select_search_order,
             progress=lambda note: bar.update(1, note=note))
         cfg = replace(cfg, nonlinearities=search.basis)
         data = with_basis(data, search.basis)
@@ -493,7 +495,7 @@ def _nonlinearity_json(nl: Nonlinearity, search: Any = None, truth: Mapping | No
                                 e.profile_objective, "std": e.std, "margin": e.margin,
                                 "interval": e.unknown.interval, "candidates": e.unknown.candidates,
                                 "motion_noise_std": e.motion_noise_std,
-                                "noise_corrected": e.noise_corrected}
+                                "noise_corrected": e.noise_corrected, "roughness": e.roughness}
                             for p, e in est.items()}
     given = {t.get("name"): t for t in (truth or {}).get("nonlinearities") or []
              if isinstance(t, dict)}.get(nl.name)
@@ -556,7 +558,10 @@ def identify_input(inp: IdentInput, cfg: IdentConfig, *, order: int | None = Non
     sweep = (parse_orders(orders) if orders is not None else list(cfg.orders or DEFAULT_ORDERS))
     search_order = (int(order) if order is not None
                     else min(cfg.order or DEFAULT_SEARCH_ORDER, max(sweep)))
-    session = prepare_session(inp, cfg, search_order=search_order, progress=progress)
+    # without any order given, the criterion picks the search's (at most search_order)
+    session = prepare_session(inp, cfg, search_order=search_order,
+                              select_search_order=order is None and cfg.order is None,
+                              progress=progress)
     cfg = session.config
     block_rows = block_rows or cfg.block_rows
     dp = _driving_points(session)

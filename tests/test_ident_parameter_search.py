@@ -108,6 +108,33 @@ def test_parallel_candidates_change_nothing(chain_stop):
         assert np.array_equal(a.profile_objective, b.profile_objective) and a.std == b.std
 
 
+def test_search_order_from_the_information_criterion(chain_stop):
+    """Without an order the robust pipeline searched at order 30: on the 3-DOF chain (order
+    6) the spare states made the model error rough: 2 steady periods ended at an edge of
+    the interval (refused), 16 at gaps +49 % / +19 % (noise-free). The criterion at the
+    coarse scan's estimate picks the order instead."""
+    import fnsi_lab
+
+    model, u, y = chain_stop
+    nl = _auto("stop", "trilinear", {"X2": 1, "X3": -1})
+    data = _data(model, u, y, [nl])
+    with pytest.raises(NotIdentifiableError):   # at order 30 alone: ends at the interval's edge
+        estimate_basis_parameters(data, [nl], order=30)
+    res = estimate_basis_parameters(data, [nl], order=30, select_order=True)
+    assert 6 <= res.order <= 8                                     # measured 6
+    assert np.allclose(res.basis[0].clearances, GAPS, rtol=5e-4)   # measured 0.006 %
+    # the pipeline does so when neither the call nor the configuration gives an order
+    cfg = {"band_hz": list(BAND), "transient_periods": 1,
+           "inputs": [{"name": model.input_names[0], "driving_point": "X3"}],
+           "nonlinearities": [{"name": "stop", "kind": "trilinear", "channels": {"X2": 1, "X3": -1},
+                               "clearances": "auto"}]}
+    src = {"u": u, "y": y, "fs": FS, "N": N, "channels": list(model.measured_names),
+           "input_channels": list(model.input_names)}
+    out = fnsi_lab.identify(src, cfg, orders="2:30").to_json()
+    assert out["parameter_search"]["order"] == res.order
+    assert np.allclose(out["nonlinearities"][0]["clearances"], GAPS, rtol=5e-4)
+
+
 def test_curvature_is_measured_where_the_objective_is_smooth():
     """A model error that is rough at the scale of Newton's last stencil (a simulator that
     samples the contacts without band limit) gives an indefinite Hessian there; the
@@ -162,6 +189,48 @@ def test_relative_two_sided_stop_noisy(seed):
                                           for w in res.warnings)
     for est in res.estimates:
         assert est.std > 1e-4 * est.value        # noise shows in the uncertainty
+
+
+def test_unmodelled_nonlinearity_is_flagged_by_the_noise_misfit():
+    """The chain with a stop AND a cubic spring (k3 = 1e9 N/m^3, as lumped_model('cubic')),
+    searched with the stop alone: the free gaps absorb the cubic (measured +168 % / +193 %,
+    with smooth, convex profiles), but the model leaves 47x the output noise where a right
+    basis leaves 1.2-1.5x, and a warning says so."""
+    stop, cubic = sim.lumped_model("trilinear"), sim.lumped_model("cubic")
+    model = replace(stop, nonlinearities=stop.nonlinearities + cubic.nonlinearities)
+    u, y = _simulate(model, periods=3)
+    P = 16
+    u, y = np.tile(u[-N:], (P, 1)), np.tile(y[-N:], (P, 1))
+    y = y + np.random.default_rng(0).standard_normal(y.shape) * np.std(y, axis=0) * 0.01
+    nl = _auto("stop", "trilinear", {"X2": 1, "X3": -1})
+    res = estimate_basis_parameters(_data(model, u, y, [nl], transient=0), [nl], order=6)
+    assert res.noise_misfit > 20
+    assert any("the basis or the order does not explain these data" in w for w in res.warnings)
+
+
+def test_a_rough_minimum_is_refused():
+    """The local profile must rise as the curvature says: a lucky low point of a rough model
+    error (5-DOF chain seen by 2 outputs: 130-10^15 times off) is refused, a smooth minimum
+    (0.6-2.3 measured) passes."""
+    from fnsi_lab.ident.parameter_search import (ParameterEstimate, Unknown, _MAX_ROUGHNESS,
+                                                 _refuse_if_unclear, _roughness)
+
+    std, s2 = 1e-6, 1e-8
+    offsets = np.array([-3e-6, 3e-6])                          # +-3 std: a rise of 9 chi-square
+    assert _roughness(offsets, 9 * s2 * np.ones(2), std, s2) == pytest.approx(1.0)
+    assert _roughness(offsets, np.array([9 * s2, 9e5 * s2]), std, s2) == pytest.approx(1e5)
+    assert _roughness(offsets, np.array([9 * s2, -s2]), std, s2) == np.inf   # lower nearby
+    u = Unknown(0, "stop", "g_pos", interval=(1e-5, 1e-3), reach=1.1e-3)
+    nl = Nonlinearity("stop", "trilinear", {"a": 1}, clearances=(1e-4, 1e-4))
+
+    def estimate(roughness):
+        return ParameterEstimate(u, 1e-4, std, np.zeros(0), np.zeros(0), margin=1e3,
+                                 roughness=roughness)
+
+    _refuse_if_unclear(estimate(2.3), nl, 0.1, 25.0)
+    _refuse_if_unclear(estimate(float("nan")), nl, 0.1, 25.0)      # no local point
+    with pytest.raises(NotIdentifiableError, match=r"g_pos: the model error around 0.0001 is rough"):
+        _refuse_if_unclear(estimate(10 * _MAX_ROUGHNESS), nl, 0.1, 25.0)
 
 
 def test_one_period_per_realisation_says_the_gaps_are_uncorrected():
