@@ -35,10 +35,9 @@ are given (``offset: auto``): the two contact points then fix it.
 Unknown parameters
 ------------------
 A clearance, a stop's offset or an exponent may be left to the data (``clearances: auto``
-in the YAML): the
-element then lists it in ``unknown`` (a :class:`ParameterSpace`: search interval or
-candidates), cannot be evaluated, and :mod:`ident.parameter_search` returns the element
-with the estimate filled in (:meth:`Nonlinearity.with_parameters`).
+in the YAML): the element then lists it in ``unknown`` (a :class:`ParameterSpace`: search
+interval or candidates), cannot be evaluated, and :mod:`ident.parameter_search` returns
+the element with the estimate filled in (:meth:`Nonlinearity.with_parameters`).
 """
 
 from __future__ import annotations

@@ -16,8 +16,8 @@ every candidate pays its own decomposition; with 6 block rows that is about 40-8
 the 39-channel SmallSat.
 
 Continuous parameters (clearances, a stop's offset, a signed exponent): a coarse scan of
-each interval (one parameter at a time, log-spaced; linear for an offset), then Newton steps on a quadratic model of ``V`` from a
-central finite-difference stencil. ``V`` is close to quadratic near its minimum while the
+each interval (one parameter at a time, log-spaced; linear for an offset), then Newton
+steps on a quadratic model of ``V`` from a central finite-difference stencil. ``V`` is close to quadratic near its minimum while the
 residual vector is strongly curved, so Gauss-Newton on the residual crawled (SmallSat: 20
 iterations without reaching the minimum) where Newton on ``V`` converged in 4-5. The
 standard deviation is curvature-based: ``cov = 2 V_min / dof * H^-1`` (``H`` the Hessian of
@@ -28,9 +28,12 @@ evaluated one by one.
 The search refuses (:class:`ident.errors.NotIdentifiableError`) rather than guesses when the
 motion never reaches the search interval (a stop never in contact), when the minimum lies
 on the interval's edge (the truth is outside, or the element barely acts), when the
-objective is flat (relative standard deviation above ``max_relative_std``) and when two
-candidate exponents fit equally well (``min_margin``). docs/ident.md, "Unknown basis
-parameters", explains the objective and its limits.
+objective is flat (relative standard deviation above ``max_relative_std``), when two
+candidate exponents fit equally well (``min_margin``), and when the objective around the
+estimate does not rise as its curvature says (a lucky low point of a rough objective,
+``roughness``). With the noise correction it also compares the residual with the output
+noise (``noise_misfit``; a warning above 10). docs/ident.md, "Unknown basis parameters",
+explains the objective and its limits.
 
 Noise in the measured motion adds to ``V`` a share that grows with the contact time (gaps
 come out too large). With displacement outputs and at least 2 periods the continuous
@@ -574,10 +577,10 @@ def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity]
         noise-weighted model error less the share the motion noise adds to it
         (:class:`MotionNoise`; docs/ident.md). False: the plain model error.
     select_order : bool
-        ``order`` is only the largest order: after the coarse scan the information
-        criterion (MDL over the orders 2..``order``, at the scan's estimate) picks the order
-        of the rest of the search, and the scan is repeated at it. For callers without an
-        order (the robust pipeline): above the structure's order the model error turns
+        ``order`` is only the largest order: the information criterion (MDL over the orders
+        2..``order``, with the search's own fits) picks the order of the coarse scan at the
+        intervals' centres, and again at the scan's estimate for the rest of the search.
+        For callers without an order (the robust pipeline): above the structure's order the model error turns
         rough at the 1e-6 level (spare states fit parts of the misfit, differently for
         neighbouring candidates), and Newton stalls off the minimum (5-DOF chain of
         bench/robustness.py, noise-free, order 30: gaps -0.7 / +0.7 %; at the criterion's
@@ -819,8 +822,9 @@ def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity]
         notes.append(f"the model at the estimated parameters leaves residuals {misfit:.3g}x the "
                      "output noise (noise-weighted; 1.2-1.5 where the search found the truth): "
                      "the basis or the order does not explain these data, and the estimates "
-                     "may sit in a wrong minimum (5-DOF chain seen by 2 outputs: 30x, gaps "
-                     "-21 % / -70 %); check the profiles, or give the order or the parameters")
+                     "may sit in a wrong minimum (3-DOF chain with an unmodelled cubic spring "
+                     "beside its stop: 47x, gaps +170 %); check the basis and the profiles, or "
+                     "give the order or the parameters")
     if any(e.unknown.reach for e in estimates):   # clearances
         if integrated != "displacement":
             notes.append(f"clearances estimated from {integrated} outputs count from the mean "
@@ -1093,8 +1097,9 @@ def _roughness(offsets: np.ndarray, rise: np.ndarray, std: float, s2: float) -> 
 _MAX_ROUGHNESS = 10.0
 #: Largest noise misfit (:attr:`ParameterSearchResult.noise_misfit`) without a warning:
 #: 1.2-1.5 where the search found the truth (3-DOF chain, 1 % noise; 5-DOF ODE chain at
-#: 40 dB), 30 where a 2-output view of the 5-DOF chain settled at gaps -21 % / -70 %. A
-#: warning, not a refusal: real structures leave model error beyond the noise too.
+#: 40 dB); 47 where an unmodelled cubic spring beside the chain's stop pushed the gaps to
+#: +170 %, 30 where a 2-output view of the 5-DOF chain settled at -21 % / -70 %. A warning,
+#: not a refusal: real structures leave model error beyond the noise too.
 _MAX_NOISE_MISFIT = 10.0
 
 

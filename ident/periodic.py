@@ -19,7 +19,8 @@ import numpy as np
 from fnsi_lab.ident.basis import Nonlinearity, coefficient_names, evaluate_basis
 from fnsi_lab.ident.errors import IdentError, IdentWarning
 from fnsi_lab.ident.excitation import ExcitationGrid, _best_grid, detect_excited_lines
-from fnsi_lab.ident.noise import (mains_contaminated_lines, noise_from_nonexcited, noise_lines,
+from fnsi_lab.ident.noise import (mains_contaminated_lines, mains_outlier_lines,
+                                  noise_from_nonexcited, noise_lines,
                                   resolution_variance)
 
 OutputQuantity = Literal["displacement", "velocity", "acceleration"]
@@ -632,6 +633,10 @@ def prepare_frequency_data(record: Any = None, *, u: Any = None, y: Any = None,
         bins = noise_lines(grid.lines, grid.step, grid.offset, N // 2 + 1, fs, N)
         hum_lines, hum_hz = mains_contaminated_lines(Y_all, U_all, bins, grid.lines, grid.step,
                                                      grid.offset, fs, N)
+        # full multisines and lines beyond the excitation: no off-grid line to look at
+        more_lines, more_hz = mains_outlier_lines(Y_all, U_all, grid.lines, K, fs, N)
+        hum_lines = np.union1d(hum_lines, more_lines).astype(int)
+        hum_hz = sorted(set(hum_hz) | set(more_hz))
         if hum_lines.size:
             K = K[~np.isin(K, hum_lines)]
             if K.size == 0:

@@ -212,8 +212,8 @@ def prepare_session(inp: IdentInput, cfg: IdentConfig, *, search_order: int | No
     Basis parameters left to the data (``clearances: auto``, ``exponent: auto``...) are
     estimated here, before any identification (:mod:`ident.parameter_search`), at
     ``search_order`` (default the config's ``order``, else 30); with
-    ``select_search_order`` that is the largest order, and the information criterion at
-    the coarse scan's estimate picks the order of the search.
+    ``select_search_order`` that is the largest order, and the information criterion
+    picks the order of the search (docs/ident.md, "Unknown basis parameters").
 
     Raises
     ------

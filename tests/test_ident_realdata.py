@@ -110,6 +110,34 @@ def test_mains_lines_left_out_only_when_hum_is_there():
     assert gone.size > 0 and np.all(np.minimum(abs(gone - 50), abs(gone - 150)) <= 3.1 * FS / 1024)
 
 
+@pytest.mark.parametrize("hum", [False, True])
+def test_hum_on_a_full_multisine_is_found_by_its_jump(hum):
+    """A full multisine excites every line, so no off-grid line shows the hum: the 3-DOF
+    chain with a stop (5-60 Hz, processed 3-150 Hz, 8 periods, pink noise 60 dB) with hum at
+    3 % of each channel's RMS gave contact stiffnesses -9 % / +32 % with the true
+    clearances. The hum's jump on the excited 50 Hz line and its 150 Hz harmonic above the
+    noise beyond the excitation find it; without those lines -0.02 % / -0.06 %. Without hum
+    nothing is dropped (measured +0.13 % / -0.04 %)."""
+    from fnsi_lab.daq.sim import lumped_model
+    from fnsi_lab.ident.config import load_ident_config, packaged_config
+
+    model = lumped_model("trilinear")
+    fs, N = 1024.0, 8192
+    ms = multisine(N, fs, (5, 60), 20.0, seed=1)
+    lab = LabRealism(snr_db=60, input_snr_db=60, noise_colour="pink", periods=8,
+                     transient_periods=2, **(dict(hum_hz=50.0, hum_level=0.03) if hum else {}))
+    rec = lab_experiment(model, ms, lab, seed=0)
+    cfg = replace(load_ident_config(packaged_config("lumped-stop")), transient_periods=0)
+    src = {"u": rec.u[0], "y": rec.y[0], "fs": fs, "N": N, "quantity": "displacement",
+           "channels": list(model.measured_names), "input_channels": list(model.input_names)}
+    src = {**src, "u": src["u"].reshape(-1, 1), "y": src["y"].reshape(-1, 3)}
+    res = fnsi_lab.identify(src, cfg, order=6).to_json()
+    assert res["excitation"]["mains_dropped_hz"] == ([50.0, 150.0] if hum else [])
+    values = np.array([c["value"] for c in res["coefficients"]])
+    # the 60 dB noise alone moves them by up to 0.13 %; 0.5 % leaves room for the seed
+    assert np.allclose(values, (2.0e4, 1.5e4), rtol=5e-3)
+
+
 def test_cut_realizations_from_one_long_record():
     N, gap = 64, 10
     parts, starts = [], []
