@@ -229,6 +229,12 @@ def prepare_session(inp: IdentInput, cfg: IdentConfig, *, search_order: int | No
         raise IdentError(f"band_hz {list(cfg.band_hz)} {where} above the Nyquist frequency "
                          f"{nyquist:g} Hz of the data (fs {inp.sample_rate_hz:g} Hz); "
                          f"lower band_hz to at most {nyquist:g} Hz")
+    if cfg.output_quantity and inp.output_quantity and cfg.output_quantity != inp.output_quantity:
+        # accelerations read as displacements give answers off by hundreds of percent
+        where = inp.path or "the data"
+        raise IdentError(f"{where}: the outputs are {inp.output_quantity} but the ident config "
+                         f"says output_quantity: {cfg.output_quantity} (fix: make them agree, or "
+                         "leave output_quantity out of the config)")
     quantity = cfg.output_quantity or inp.output_quantity or "displacement"
     unknown = has_unknown_parameters(cfg.nonlinearities)
     with warnings.catch_warnings(record=True) as caught:

@@ -82,6 +82,10 @@ def test_mat_file_and_order_override(tmp_path, cubic_arrays, config_file, capsys
     (lambda a: a.update(y=a["y"][:-5]), "same number of samples"),
     (lambda a: a.update(channels=np.array(["X1", "X2", "Z3"])), "channel 'X3' is not among the identified outputs"),
     (lambda a: a.update(N=np.array(1000)), "whole number of periods"),
+    # the file says accelerations, the config displacements: read as displacements the
+    # lab stop's accelerations gave stiffnesses -324 % / -399 %
+    (lambda a: a.update(quantity=np.array("acceleration")),
+     "the outputs are acceleration but the ident config says output_quantity: displacement"),
 ])
 def test_bad_input_is_one_line(tmp_path, cubic_arrays, config_file, capsys, change, message):
     arrays = dict(cubic_arrays)
