@@ -20,6 +20,7 @@ Timing ratios are measured within one run (auto and known interleaved, best of `
 absolute times depend on the machine's load.
 
     python bench/bench_parameter_search.py [--repeat 2] [--quick] [--only offset]
+    python bench/bench_parameter_search.py --only chain --periods 16,32,64
 """
 
 from __future__ import annotations
@@ -188,6 +189,8 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="one noise seed")
     ap.add_argument("--only", choices=("smallsat", "chain", "offset"),
                     help="run one group of cases")
+    ap.add_argument("--periods", default="16",
+                    help="periods averaged in the noisy chain runs, comma list (e.g. 16,32,64)")
     args = ap.parse_args()
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     print(f"date: {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; "
@@ -199,7 +202,8 @@ def main() -> None:
         smallsat(1, noise=0.01)
     if args.only in (None, "chain"):
         chain(0.0, range(1), 3, args.repeat)
-        chain(0.01, seeds, 16, 1)
+        for periods in (int(p) for p in args.periods.split(",")):
+            chain(0.01, seeds, periods, 1)
         chain(0.01, seeds, 16, 1, order=None)
     if args.only in (None, "offset"):
         few = range(1 if args.quick else 3)
