@@ -848,8 +848,11 @@ def _order_by_information_criterion(data: FrequencyData, basis: Sequence[Nonline
     3-DOF chain with 16 periods)."""
     from fnsi_lab.ident import order_selection as osel
 
-    cand = with_basis(data, basis)
-    dec = fnsi.subspace_decomposition(cand, max_order=max_order, block_rows=block_rows)
+    try:
+        cand = with_basis(data, basis)
+        dec = fnsi.subspace_decomposition(cand, max_order=max_order, block_rows=block_rows)
+    except (IdentError, np.linalg.LinAlgError):   # e.g. a basis column zero here: no opinion
+        return int(max_order)
     mask, band = osel.ic_line_mask(cand.frequencies_hz, cand.excited, cand.n_outputs, "auto")
     energy = float(np.sum(np.abs(cand.Y[mask]) ** 2))
     orders = list(range(2, int(max_order) + 1))
