@@ -220,8 +220,8 @@ def mains_contaminated_lines(Y: np.ndarray, U: np.ndarray, bins: np.ndarray,
 
 def mains_outlier_lines(Y: np.ndarray, U: np.ndarray, excited_lines: np.ndarray,
                         processed_lines: np.ndarray, sample_rate_hz: float,
-                        samples_per_period: int, *, mains_zone: float = 3.0,
-                        ratio: float = 30.0, half_width: int = 8
+                        samples_per_period: int, *, spread: np.ndarray | None = None,
+                        mains_zone: float = 3.0, ratio: float = 30.0, half_width: int = 8
                         ) -> tuple[np.ndarray, list[float]]:
     """Mains harmonics that stand out of the outputs' own neighbourhood, where
     :func:`mains_contaminated_lines` has no off-grid line to look at.
@@ -230,8 +230,13 @@ def mains_outlier_lines(Y: np.ndarray, U: np.ndarray, excited_lines: np.ndarray,
     lines beyond the excitation's range. On an excited line the output's ratio to the drive
     ``Y / U`` (one input; several: ``Y`` over the drive's RMS on that line) is compared with
     the mean of its two neighbours; the harmonic is contaminated when that jump exceeds
-    ``ratio`` times its median over the excited lines. On a processed line that is not
-    excited, ``|Y|^2`` is compared with the median over +-``half_width`` neighbours.
+    ``ratio`` times its median over the excited lines on a line of its zone. On processed
+    lines that are not excited, ``|Y|^2`` is compared with the median over the
+    ``half_width`` lines on each side of the zone. With several periods, a zone line whose
+    period-to-period variance exceeds ``ratio`` times that median on the neighbouring
+    lines is hum too: mains that is not synchronous with the record drifts in phase from
+    period to period, so the average smears it over the zone (no jump) and the spread
+    shows it.
 
     Parameters
     ----------
@@ -241,8 +246,12 @@ def mains_outlier_lines(Y: np.ndarray, U: np.ndarray, excited_lines: np.ndarray,
         DFT bins excited by the multisine, and kept for the fit.
     sample_rate_hz : float
     samples_per_period : int
+    spread : ndarray, shape (N // 2 + 1, p), optional
+        Variance of the period average per line and output (from the period-to-period
+        spread, unsmoothed; ``P >= 2``).
     mains_zone : float
-        Half-width (lines) of a harmonic's zone (every bin of it is returned).
+        Smallest half-width (lines) of a harmonic's zone, widened to +-0.5 % of the
+        harmonic's frequency (every line of the zone is tested and returned).
     ratio : float
         Outlier threshold (above).
     half_width : int
@@ -283,25 +292,37 @@ def mains_outlier_lines(Y: np.ndarray, U: np.ndarray, excited_lines: np.ndarray,
         rel = dev / np.maximum(scale, np.finfo(float).tiny)                 # (R, n, p)
         jump = rel / np.maximum(np.median(rel, axis=(0, 1)), np.finfo(float).tiny)
     power = np.mean(np.abs(Y) ** 2, axis=0)                                 # (bins, p)
+    tiny = np.finfo(float).tiny
     out: list[np.ndarray] = []
     found: list[float] = []
     for f_m in MAINS_HZ:
         for h in range(1, int(kept.max() * df / f_m) + 1):
             f_h = h * f_m
-            k = int(round(f_h / df))
+            # the mains frequency wanders by up to +-0.5 %: at the higher harmonics that is
+            # more lines than the zone
+            half = max(mains_zone, 0.005 * f_h / df)
+            zone = np.arange(int(np.ceil(f_h / df - half)), int(np.floor(f_h / df + half)) + 1)
+            zone = zone[(zone > 0) & (zone < n_bins - 1)]
             hit = False
-            if k in exc:
-                if jump is not None and k in inner:
-                    hit = bool(np.any(jump[:, np.searchsorted(inner, k)] > ratio))
-            elif k in kept and not exc.min() <= k <= exc.max() and 0 < k < n_bins - 1:
-                near = np.r_[max(k - half_width, 1):k - 1, k + 2:min(k + half_width + 1, n_bins)]
-                near = near[~np.isin(near, exc)]
+            if jump is not None:
+                at = zone[np.isin(zone, inner)]
+                hit = bool(np.any(jump[:, np.searchsorted(inner, at)] > ratio))
+            beyond = zone[np.isin(zone, kept) & ~np.isin(zone, exc)
+                          & ((zone < exc.min()) | (zone > exc.max()))]
+            side = np.r_[max(zone[0] - half_width, 1):zone[0],
+                         zone[-1] + 1:min(zone[-1] + half_width + 1, n_bins)]
+            if not hit and beyond.size:
+                near = side[~np.isin(side, exc)]
                 if near.size:
-                    ref = np.median(power[near], axis=0)
-                    hit = bool(np.any(power[k] > ratio * np.maximum(ref, np.finfo(float).tiny)))
+                    ref = np.maximum(np.median(power[near], axis=0), tiny)
+                    hit = bool(np.any(power[beyond] > ratio * ref))
+            tested = zone[np.isin(zone, inner) if jump is not None else np.zeros(zone.size, bool)]
+            tested = np.union1d(tested, beyond)
+            if not hit and spread is not None and tested.size and side.size:
+                ref = np.maximum(np.median(spread[side], axis=0), tiny)
+                hit = bool(np.any(spread[tested] > ratio * ref))
             if hit:
-                out.append(np.arange(int(np.ceil(f_h / df - mains_zone)),
-                                     int(np.floor(f_h / df + mains_zone)) + 1))
+                out.append(zone)
                 found.append(float(f_h))
     lines = np.unique(np.concatenate(out)) if out else np.zeros(0, int)
     return lines, found

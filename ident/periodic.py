@@ -634,7 +634,13 @@ def prepare_frequency_data(record: Any = None, *, u: Any = None, y: Any = None,
         hum_lines, hum_hz = mains_contaminated_lines(Y_all, U_all, bins, grid.lines, grid.step,
                                                      grid.offset, fs, N)
         # full multisines and lines beyond the excitation: no off-grid line to look at
-        more_lines, more_hz = mains_outlier_lines(Y_all, U_all, grid.lines, K, fs, N)
+        spread = None
+        if P >= 2:   # variance of the average per line, for hum that drifts between periods
+            Yq_all = np.fft.rfft(Y4, axis=2) / N                           # (R, P, bins, p)
+            spread = np.mean(np.sum(np.abs(Yq_all - Y_all[:, None]) ** 2, axis=1), axis=0) \
+                / (P * (P - 1))
+        more_lines, more_hz = mains_outlier_lines(Y_all, U_all, grid.lines, K, fs, N,
+                                                  spread=spread)
         hum_lines = np.union1d(hum_lines, more_lines).astype(int)
         hum_hz = sorted(set(hum_hz) | set(more_hz))
         if hum_lines.size:
