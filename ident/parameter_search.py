@@ -855,7 +855,9 @@ def _order_by_information_criterion(data: FrequencyData, basis: Sequence[Nonline
         return int(max_order)
     mask, band = osel.ic_line_mask(cand.frequencies_hz, cand.excited, cand.n_outputs, "auto")
     energy = float(np.sum(np.abs(cand.Y[mask]) ** 2))
-    orders = list(range(2, int(max_order) + 1))
+    # even orders (modes come in pairs): half the fits of every order, the same choice on
+    # the chains and the SmallSat
+    orders = sorted(set(range(2, int(max_order) + 1, 2)) | {int(max_order)})
     errors, stable = [], []
     for n in orders:
         a_d, c_d = fnsi.state_matrices(dec, n)
