@@ -841,11 +841,10 @@ def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity]
 
 def _order_by_information_criterion(data: FrequencyData, basis: Sequence[Nonlinearity],
                                     max_order: int, *, block_rows: int, d_zero: bool) -> int:
-    """The order 2..``max_order`` the information criterion (MDL, the robust pipeline's
-    default; docs/ident.md) selects for ``data`` with ``basis``: one QR + SVD with the
-    search's block rows, then per order the search's own ``A``, ``C`` and ``B``, ``D`` fit
-    (half the cost of the pipeline's model per order: 0.1-0.15 s for orders 2..30 on the
-    3-DOF chain with 16 periods)."""
+    """The even order 2..``max_order`` the information criterion (MDL, the robust
+    pipeline's default; docs/ident.md) selects for ``data`` with ``basis``: one QR + SVD
+    with the search's block rows, then per order the search's own ``A``, ``C`` and ``B``,
+    ``D`` fit (about 0.06 s for the 3-DOF chain with 16 periods)."""
     from fnsi_lab.ident import order_selection as osel
 
     try:
