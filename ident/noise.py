@@ -284,15 +284,15 @@ def mains_outlier_lines(Y: np.ndarray, U: np.ndarray, excited_lines: np.ndarray,
     drive = U[..., 0] if U.shape[2] == 1 else np.sqrt(np.sum(np.abs(U) ** 2, axis=2))
     inner = exc[(exc > 0) & (exc < n_bins - 1)]
     inner = inner[np.isin(inner - 1, exc) & np.isin(inner + 1, exc)]
+    tiny = np.finfo(float).tiny
     jump = None
     if full and inner.size:
         H = Y / np.where(np.abs(drive) > 0, drive, np.inf)[..., None]        # (R, bins, p)
         dev = np.abs(H[:, inner] - 0.5 * (H[:, inner - 1] + H[:, inner + 1]))
         scale = 0.5 * (np.abs(H[:, inner - 1]) + np.abs(H[:, inner + 1]))
-        rel = dev / np.maximum(scale, np.finfo(float).tiny)                 # (R, n, p)
-        jump = rel / np.maximum(np.median(rel, axis=(0, 1)), np.finfo(float).tiny)
+        rel = dev / np.maximum(scale, tiny)                                 # (R, n, p)
+        jump = rel / np.maximum(np.median(rel, axis=(0, 1)), tiny)
     power = np.mean(np.abs(Y) ** 2, axis=0)                                 # (bins, p)
-    tiny = np.finfo(float).tiny
     out: list[np.ndarray] = []
     found: list[float] = []
     for f_m in MAINS_HZ:
@@ -303,10 +303,8 @@ def mains_outlier_lines(Y: np.ndarray, U: np.ndarray, excited_lines: np.ndarray,
             half = max(mains_zone, 0.005 * f_h / df)
             zone = np.arange(int(np.ceil(f_h / df - half)), int(np.floor(f_h / df + half)) + 1)
             zone = zone[(zone > 0) & (zone < n_bins - 1)]
-            hit = False
-            if jump is not None:
-                at = zone[np.isin(zone, inner)]
-                hit = bool(np.any(jump[:, np.searchsorted(inner, at)] > ratio))
+            at = zone[np.isin(zone, inner)] if jump is not None else zone[:0]
+            hit = bool(at.size) and bool(np.any(jump[:, np.searchsorted(inner, at)] > ratio))
             beyond = zone[np.isin(zone, kept) & ~np.isin(zone, exc)
                           & ((zone < exc.min()) | (zone > exc.max()))]
             side = np.r_[max(zone[0] - half_width, 1):zone[0],
@@ -316,8 +314,7 @@ def mains_outlier_lines(Y: np.ndarray, U: np.ndarray, excited_lines: np.ndarray,
                 if near.size:
                     ref = np.maximum(np.median(power[near], axis=0), tiny)
                     hit = bool(np.any(power[beyond] > ratio * ref))
-            tested = zone[np.isin(zone, inner) if jump is not None else np.zeros(zone.size, bool)]
-            tested = np.union1d(tested, beyond)
+            tested = np.union1d(at, beyond)
             if not hit and spread is not None and tested.size and side.size:
                 ref = np.maximum(np.median(spread[side], axis=0), tiny)
                 hit = bool(np.any(spread[tested] > ratio * ref))

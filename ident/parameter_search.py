@@ -621,7 +621,11 @@ def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity]
     note = progress or (lambda s: None)
     n_basis_columns = sum(len(nl.coefficient_names) for nl in basis)
     m_e = data.n_inputs + n_basis_columns
-    i_search = block_rows or search_block_rows(data.n_outputs, order, data.n_lines, m_e)
+
+    def rows_for(n: int) -> int:
+        return block_rows or search_block_rows(data.n_outputs, n, data.n_lines, m_e)
+
+    i_search = rows_for(order)
     y_energy = float(np.sum(np.abs(data.Y) ** 2))
     n_workers = max(1, int(workers) if workers is not None else min(4, os.cpu_count() or 1))
     n_eval = [0]
@@ -715,7 +719,7 @@ def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity]
     if select_order:   # the scan at the criterion's order at the interval centres ...
         order = _order_by_information_criterion(data, _resolve(basis, unknowns, values),
                                                 max_order, block_rows=i_max, d_zero=d_zero)
-        i_search = block_rows or search_block_rows(data.n_outputs, order, data.n_lines, m_e)
+        i_search = rows_for(order)
         note(f"order {order}")
     for k, u in enumerate(unknowns):  # coarse scan, one parameter at a time
         grid, vs = scans[k] = scan(k, u)
@@ -730,7 +734,7 @@ def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity]
                                                  max_order, block_rows=i_max, d_zero=d_zero)
         if chosen != order:    # refined from the scan's estimate; profiles again at the end
             order, rescan = chosen, True
-            i_search = block_rows or search_block_rows(data.n_outputs, order, data.n_lines, m_e)
+            i_search = rows_for(order)
             memo.clear()
             note(f"order {order}")
     if correct and cont and all(unknowns[k].is_length for k in cont):   # clearances, offsets

@@ -625,18 +625,20 @@ def prepare_frequency_data(record: Any = None, *, u: Any = None, y: Any = None,
     else:
         pw_all = np.mean(np.sum(np.abs(np.fft.rfft(u_avg, axis=1)) ** 2, axis=2), axis=0)
         grid = detect_excited_lines(pw_all, fs, N, threshold=excitation_threshold)
+    # spectra on every bin: of the averages, and of each period (hum, noise estimate)
+    Y_all = np.fft.rfft(y_avg, axis=1) / N                                 # (R, bins, p)
+    U_all = np.fft.rfft(u_avg, axis=1) / N                                 # (R, bins, m)
+    Yq_all = (np.fft.rfft(Y4, axis=2) / N                                  # (R, P, bins, p)
+              if P >= 2 and (drop_mains or noise_estimate in ("auto", "periods")) else None)
     # lines where mains hum stands out of the noise are left out of the processed set
     hum_lines, hum_hz = np.zeros(0, int), []
     if drop_mains:
-        Y_all = np.fft.rfft(y_avg, axis=1) / N
-        U_all = np.fft.rfft(u_avg, axis=1) / N
         bins = noise_lines(grid.lines, grid.step, grid.offset, N // 2 + 1, fs, N)
         hum_lines, hum_hz = mains_contaminated_lines(Y_all, U_all, bins, grid.lines, grid.step,
                                                      grid.offset, fs, N)
         # full multisines and lines beyond the excitation: no off-grid line to look at
         spread = None
-        if P >= 2:   # variance of the average per line, for hum that drifts between periods
-            Yq_all = np.fft.rfft(Y4, axis=2) / N                           # (R, P, bins, p)
+        if Yq_all is not None:   # variance of the average per line: hum drifting between periods
             spread = np.mean(np.sum(np.abs(Yq_all - Y_all[:, None]) ** 2, axis=1), axis=0) \
                 / (P * (P - 1))
         more_lines, more_hz = mains_outlier_lines(Y_all, U_all, grid.lines, K, fs, N,
@@ -698,15 +700,15 @@ def prepare_frequency_data(record: Any = None, *, u: Any = None, y: Any = None,
                              channels=tuple(output_names[i] for i in used), lines=K,
                              force_rms=rms_p, noise_cov=motion_noise,
                              noise_spectrum=noise_spectrum, noise_output_cross=noise_cross)
-    Uf = np.fft.rfft(u_avg, axis=1)[:, K] / N  # (R, F0, m)
-    Yf = np.fft.rfft(y_avg, axis=1)[:, K] / N  # (R, F0, p)
+    Uf = U_all[:, K]  # (R, F0, m)
+    Yf = Y_all[:, K]  # (R, F0, p)
     excited = np.tile(np.isin(K, grid.lines), R)
     noise, noise_source = None, "none"
     if noise_estimate not in ("auto", "periods", "lines", "none"):
         raise IdentError(f"noise_estimate {noise_estimate!r} is not one of "
                          "['auto', 'periods', 'lines', 'none']")
     if P >= 2 and noise_estimate in ("auto", "periods"):
-        Yq = np.fft.rfft(Y4, axis=2)[:, :, K] / N  # (R, P, F0, p)
+        Yq = Yq_all[:, :, K]  # (R, P, F0, p)
         dev = Yq - Yf[:, None]
         if P - 1 < 2 * p and R * K.size * p * p * 16 > _FULL_COV_MAX_BYTES:
             noise = (np.sum(np.abs(dev) ** 2, axis=1) / (P * (P - 1))).reshape(-1, p)
