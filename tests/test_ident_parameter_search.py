@@ -154,6 +154,18 @@ def test_curvature_is_measured_where_the_objective_is_smooth():
                           np.eye(2))      # a positive one is kept
 
 
+def _noisy_chain_data(gaps, seed):
+    """3-DOF chain with a relative stop of these gaps, 1 % white noise on every output, 16
+    periods; the basis with both gaps auto."""
+    model = sim.lumped_model("trilinear", clearances=gaps)
+    u, y = _simulate(model, periods=3)
+    P = 16
+    u, y = np.tile(u[-N:], (P, 1)), np.tile(y[-N:], (P, 1))
+    y = y + np.random.default_rng(seed).standard_normal(y.shape) * np.std(y, axis=0) * 0.01
+    nl = _auto("stop", "trilinear", {"X2": 1, "X3": -1})
+    return _data(model, u, y, [nl], transient=0), nl
+
+
 @pytest.mark.parametrize("seed", [0, 3])
 def test_relative_two_sided_stop_noisy(seed):
     """1 % white noise on every output, 16 periods averaged. The noise in the measured
@@ -162,13 +174,7 @@ def test_relative_two_sided_stop_noisy(seed):
     removes that bias and leaves the scatter (docs/ident.md). Seed 3 once ended in the
     spurious low-gap region where the stop columns become a linear copy of the noisy outputs
     (fixed by the Newton trust region)."""
-    model = sim.lumped_model("trilinear")
-    u, y = _simulate(model, periods=3)
-    P = 16
-    u, y = np.tile(u[-N:], (P, 1)), np.tile(y[-N:], (P, 1))
-    y = y + np.random.default_rng(seed).standard_normal(y.shape) * np.std(y, axis=0) * 0.01
-    nl = _auto("stop", "trilinear", {"X2": 1, "X3": -1})
-    data = _data(model, u, y, [nl], transient=0)
+    data, nl = _noisy_chain_data(GAPS, seed)
     plain = estimate_basis_parameters(data, [nl], order=6, noise_correction=False)
     err_plain = np.array(plain.basis[0].clearances) / GAPS - 1
     # measured +3.0 % / +4.4 % (seed 0), +0.7 % / +2.7 % (seed 3); seeds 0-7: +0.6..+7.8 %,
@@ -202,13 +208,7 @@ def test_gaps_near_the_motion_rms_are_found_from_the_stops_open(seed, order):
     criterion chose 4 at the intervals' centres, where the open start lost; both starts are
     compared at the order chosen at the first one's estimate (6)."""
     gaps = (1.2e-3, 1.5e-3)
-    model = sim.lumped_model("trilinear", clearances=gaps)
-    u, y = _simulate(model, periods=3)
-    P = 16
-    u, y = np.tile(u[-N:], (P, 1)), np.tile(y[-N:], (P, 1))
-    y = y + np.random.default_rng(seed).standard_normal(y.shape) * np.std(y, axis=0) * 0.01
-    nl = _auto("stop", "trilinear", {"X2": 1, "X3": -1})
-    data = _data(model, u, y, [nl], transient=0)
+    data, nl = _noisy_chain_data(gaps, seed)
     notes = []
     res = estimate_basis_parameters(data, [nl], order=order or 30, select_order=order is None,
                                     progress=notes.append)
@@ -223,17 +223,6 @@ def test_gaps_near_the_motion_rms_are_found_from_the_stops_open(seed, order):
     assert np.allclose(coefficients, CONTACT, rtol=0.005)
 
 
-def _peak_contact_data(gaps, seed):
-    """3-DOF chain with the given gaps, 1 % noise, 16 periods; the basis with both gaps auto."""
-    model = sim.lumped_model("trilinear", clearances=gaps)
-    u, y = _simulate(model, periods=3)
-    P = 16
-    u, y = np.tile(u[-N:], (P, 1)), np.tile(y[-N:], (P, 1))
-    y = y + np.random.default_rng(seed).standard_normal(y.shape) * np.std(y, axis=0) * 0.01
-    nl = _auto("stop", "trilinear", {"X2": 1, "X3": -1})
-    return _data(model, u, y, [nl], transient=0), nl
-
-
 def test_gaps_without_an_order_retried_from_the_stops_open():
     """No order given: the information criterion picks it, but on a wrong basis it wanders
     (4 to 30 on these chains; 6 at the true gaps). Here the scan at the centres' order (8)
@@ -241,7 +230,7 @@ def test_gaps_without_an_order_retried_from_the_stops_open():
     retried from the stops open before refusing (docs/ident.md, 'Unknown basis
     parameters')."""
     gaps = (0.963e-3, 1.259e-3)
-    data, nl = _peak_contact_data(gaps, 26)
+    data, nl = _noisy_chain_data(gaps, 26)
     res = estimate_basis_parameters(data, [nl], order=30, select_order=True)
     err = np.array(res.basis[0].clearances) / gaps - 1
     assert np.all(np.abs(err) < 0.01)      # measured +0.08 / -0.06 %
@@ -252,7 +241,7 @@ def test_refusal_without_an_order_says_give_the_order():
     the search refuses, and says that the structure's order would help: given, the same
     data give the gaps (measured +0.01 / +0.41 % at order 6)."""
     gaps = (1.970e-3, 0.546e-3)
-    data, nl = _peak_contact_data(gaps, 96)
+    data, nl = _noisy_chain_data(gaps, 96)
     with pytest.raises(NotIdentifiableError, match="give the structure's model order"):
         estimate_basis_parameters(data, [nl], order=30, select_order=True)
     res = estimate_basis_parameters(data, [nl], order=6)
