@@ -775,10 +775,11 @@ def _search(data: FrequencyData, basis: Sequence[Nonlinearity], *, order: int, d
 
     max_order, i_max = order, i_search
 
-    def ic_order(vals: np.ndarray) -> int:
-        """The information criterion's order with the basis at ``vals``."""
+    def ic_order(vals: np.ndarray, with_value: bool = False):
+        """The information criterion's order with the basis at ``vals`` (and its value)."""
         return _order_by_information_criterion(data, _resolve(basis, unknowns, vals),
-                                               max_order, block_rows=i_max, d_zero=d_zero)
+                                               max_order, block_rows=i_max, d_zero=d_zero,
+                                               with_value=with_value)
 
     def set_order(n: int, scanned: bool = True) -> None:
         """Search at order ``n`` from now on; on a change the memo goes (its objectives
@@ -825,9 +826,7 @@ def _search(data: FrequencyData, basis: Sequence[Nonlinearity], *, order: int, d
                 first = ((first_values.copy(), first_scans) if n == scan_order
                          else coarse_scan(centres))
                 v, sc, won = _better_start(first, coarse_scan(open_start), refine)
-                n_v, criterion = _order_by_information_criterion(
-                    data, _resolve(basis, unknowns, v), max_order, block_rows=i_max,
-                    d_zero=d_zero, with_value=True)
+                n_v, criterion = ic_order(v, with_value=True)
                 options.append((criterion, v, sc, won, n_v))
             _, v, scans, restarted, n_v = min(options, key=lambda o: o[0])
             values[:] = v
