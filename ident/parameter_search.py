@@ -18,9 +18,10 @@ the 39-channel SmallSat.
 Continuous parameters (clearances, a stop's offset, a signed exponent): a coarse scan of
 each interval (one parameter at a time, log-spaced; linear for an offset; scanned again from
 the stops open when a clearance lands at its lowest point, :func:`_better_start`), then Newton
-steps on a quadratic model of ``V`` from a central finite-difference stencil. ``V`` is close to quadratic near its minimum while the
-residual vector is strongly curved, so Gauss-Newton on the residual crawled (SmallSat: 20
-iterations without reaching the minimum) where Newton on ``V`` converged in 4-5. The
+steps on a quadratic model of ``V`` from a central finite-difference stencil. ``V`` is close
+to quadratic near its minimum while the residual vector is strongly curved, so Gauss-Newton
+on the residual crawled (SmallSat: 20 iterations without reaching the minimum) where Newton
+on ``V`` converged in 4-5. The
 standard deviation is curvature-based: ``cov = 2 V_min / dof * H^-1`` (``H`` the Hessian of
 ``V``, ``dof`` the residual degrees of freedom), i.e. ``s^2 (J^T J)^-1`` with the residual
 variance ``s^2`` estimated from the fit. Discrete parameters (candidate exponents) are
@@ -580,7 +581,8 @@ def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity]
     select_order : bool
         ``order`` is only the largest order: the information criterion (MDL over the orders
         2..``order``, with the search's own fits) picks the order of the coarse scan at the
-        intervals' centres, and again at the scan's estimate for the rest of the search.
+        intervals' centres, and again at the scan's estimate for the rest of the search
+        (with the second start, see Notes, it compares two orders).
         For callers without an order (the robust pipeline): above the structure's order the model error turns
         rough at the 1e-6 level (spare states fit parts of the misfit, differently for
         neighbouring candidates), and Newton stalls off the minimum (5-DOF chain of
@@ -621,21 +623,19 @@ def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity]
                   noise_correction=noise_correction, select_order=select_order,
                   workers=workers, progress=progress)
     try:
+        return _search(data, basis, **kwargs)
+    except NotIdentifiableError as exc:
+        refusal = exc
+    if not getattr(refusal, "restarted", True):   # the second start not tried yet
         try:
-            return _search(data, basis, **kwargs)
-        except NotIdentifiableError as refusal:
-            if getattr(refusal, "restarted", True):
-                raise
-            try:
-                return _search(data, basis, force_restart=True, **kwargs)
-            except NotIdentifiableError:
-                raise refusal from None
-    except NotIdentifiableError as refusal:
-        if select_order and getattr(refusal, "restarted", None) is not None:
-            # the order came from the criterion, which wanders while the basis is wrong
-            raise NotIdentifiableError(f"{refusal}; or give the structure's model order "
-                                       "(order: in the configuration, --order)") from None
-        raise
+            return _search(data, basis, force_restart=True, **kwargs)
+        except NotIdentifiableError:
+            pass
+    if select_order and hasattr(refusal, "restarted"):
+        # the order came from the criterion, which wanders while the basis is wrong
+        raise NotIdentifiableError(f"{refusal}; or give the structure's model order "
+                                   "(order: in the configuration, --order)") from None
+    raise refusal
 
 
 def _search(data: FrequencyData, basis: Sequence[Nonlinearity], *, order: int, d_zero: bool,
