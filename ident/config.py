@@ -25,6 +25,8 @@ field and the fix; unknown keys are rejected (typos). Example (3-DOF chain, rela
     time_base: auto              # auto | band-limited (anti-aliased) | zoh (held input) | bilinear
     basis_oversample: 8          # basis functions on an 8x band-limited interpolation (§8.4)
     integration_min_snr: 4       # accelerations: lines below 4x their noise not integrated
+    refine: auto                 # auto | output-error | none: the output-error refinement
+                                 # (docs/ident.md); auto: noisy data with basis functions
 
     auto:                        # options of the robust pipeline (--auto; docs/robust.md)
       top_n: 3                   # e.g. keep exactly the 3 most dominant modes
@@ -49,6 +51,10 @@ from fnsi_lab.ident.options import AutoOptions, parse_orders
 from fnsi_lab.ident.periodic import OUTPUT_QUANTITIES
 
 WEIGHTINGS = ("auto", "none", "noise")
+#: ``refine:`` choices: ``auto`` refines noisy data with basis functions by their output error
+#: (:mod:`ident.output_error`), ``output-error`` always (unweighted without a noise
+#: estimate), ``none`` keeps FNSI's model.
+REFINEMENTS = ("auto", "output-error", "none")
 
 
 @dataclass(frozen=True)
@@ -81,6 +87,7 @@ class IdentConfig:
     bilinear_period_s: float | None = None
     basis_oversample: int = 8
     integration_min_snr: float | None = 4.0
+    refine: str = "auto"
     auto: AutoOptions = field(default_factory=AutoOptions)
     orders: tuple[int, ...] | None = None
     file: str | None = None
@@ -324,6 +331,7 @@ def parse_ident_config(data: Any, *, file: str | None = None) -> IdentConfig:
             bilinear_period_s=sec.number("bilinear_period_s", None, positive=True),
             basis_oversample=sec.integer("basis_oversample", 8, minimum=1),
             integration_min_snr=sec.number("integration_min_snr", 4.0, nonnegative=True),
+            refine=sec.string("refine", "auto", choices=REFINEMENTS),
             file=file, **_auto_section(sec))
         sec.finish()
         return cfg

@@ -431,6 +431,9 @@ class MotionNoise:
         With ``motion.noise_spectrum`` (displacement outputs, ``P >= 2``).
     basis : sequence of Nonlinearity
         The elements (their location vectors; parameters may still be unknown).
+    integrated : bool
+        Use ``motion.line_noise`` instead, which velocity and acceleration outputs have too
+        (the output-error refinement's decision; the search corrects displacements only).
 
     Notes
     -----
@@ -439,13 +442,15 @@ class MotionNoise:
     exact; the noise spectra are transformed once per search.
     """
 
-    def __init__(self, data: FrequencyData, basis: Sequence[Nonlinearity]) -> None:
+    def __init__(self, data: FrequencyData, basis: Sequence[Nonlinearity], *,
+                 integrated: bool = False) -> None:
         motion = data.motion
-        if motion is None or motion.noise_spectrum is None:
+        S = None if motion is None else (motion.line_noise if integrated
+                                         else motion.noise_spectrum)
+        if S is None:
             raise IdentError("these frequency data hold no noise spectrum of the motion "
                              "(displacement outputs and at least 2 periods are needed)")
         self.motion = motion
-        S = motion.noise_spectrum                                   # (N/2+1, c, c)
         n_half = S.shape[0]
         self.n_period = 2 * (n_half - 1)
         self.size = 2 * self.n_period                               # circular length
@@ -460,7 +465,7 @@ class MotionNoise:
             two_sided[i, :n_half] = S_ab
             two_sided[i, self.size - n_half + 1:] = np.conj(S_ab[1:][::-1])  # S(-j) = S(j)^*
         self.S_fft = np.fft.fft(two_sided, axis=1)
-        cross = motion.noise_output_cross                           # (F0, c, p) or None
+        cross = None if integrated else motion.noise_output_cross  # (F0, c, p) or None
         self.cross = None if cross is None else np.einsum("ac,kcp->kap", self.L, cross)
 
     def _slopes(self, basis: Sequence[Nonlinearity]) -> np.ndarray:

@@ -56,6 +56,12 @@ class BasisMotion:
     noise_output_cross : complex ndarray, shape (F0, c, p) or None
         ``E[n_q(k) n_y(k)^H]`` on the processed lines: the same noise seen in the averaged
         motion and in the averaged outputs ``Y`` (they are the same records).
+    line_noise : complex ndarray, shape (N // 2 + 1, c, c) or None
+        The motion's noise cross-spectrum for any output quantity (``P >= 2``): for
+        velocities and accelerations the outputs' spread integrated like the motion
+        (divided by ``w^2`` or ``w^4``; DC left at 0). ``noise_spectrum`` itself for
+        displacements. The output-error refinement judges the measured motion outside the
+        processed band by it (:mod:`ident.harmonic_balance`).
 
     The two spectra let :mod:`ident.parameter_search` remove what the noise in the motion
     adds to the model error of a candidate clearance (docs/ident.md, "Unknown basis
@@ -70,6 +76,7 @@ class BasisMotion:
     noise_cov: np.ndarray | None = None
     noise_spectrum: np.ndarray | None = None
     noise_output_cross: np.ndarray | None = None
+    line_noise: np.ndarray | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -681,25 +688,33 @@ def prepare_frequency_data(record: Any = None, *, u: Any = None, y: Any = None,
             # only the channels the basis functions read, on the band-limited interpolation
             q_list.append(interpolate_periodic(q[:, used], basis_oversample))
             qd_list.append(None if qd is None else interpolate_periodic(qd[:, used], basis_oversample))
-        motion_noise = noise_spectrum = noise_cross = None
-        if output_quantity == "displacement" and P >= 2:
-            # per-sample noise covariance of the period average, from the period-to-period spread
+        motion_noise = noise_spectrum = noise_cross = line_noise = None
+        if P >= 2:
+            # per-line noise of the averaged motion, from the period-to-period spread
             res = Y4 - y_avg[:, None]                               # (R, P, N, p)
             res_q = res[..., used]
-            motion_noise = np.einsum("rpni,rpnj->ij", res_q, res_q) / (R * N * (P - 1) * P)
-            # ... and its spectrum, for the noise correction of the clearance search
             dev_q = np.fft.rfft(res_q, axis=2) / N                  # (R, P, N//2+1, c)
-            dev_y = np.fft.rfft(res, axis=2)[:, :, K] / N           # (R, P, F0, p)
             scale = 1.0 / (R * P * (P - 1))
-            noise_spectrum = smooth_lines(
-                np.einsum("rpki,rpkj->kij", dev_q, dev_q.conj()) * scale, 8)
+            line_noise = smooth_lines(np.einsum("rpki,rpkj->kij", dev_q, dev_q.conj()) * scale, 8)
+            if output_quantity != "displacement":   # integrated like the motion
+                t = {"velocity": 1, "acceleration": 2}[output_quantity]
+                w = 2 * np.pi * np.arange(line_noise.shape[0]) * fs / N
+                with np.errstate(divide="ignore"):
+                    line_noise = line_noise / np.where(w > 0, w, np.inf)[:, None, None] ** (2 * t)
+        if output_quantity == "displacement" and P >= 2:
+            # per-sample noise covariance of the period average and the noise spectrum, for
+            # the noise correction of the clearance search
+            motion_noise = np.einsum("rpni,rpnj->ij", res_q, res_q) / (R * N * (P - 1) * P)
+            dev_y = np.fft.rfft(res, axis=2)[:, :, K] / N           # (R, P, F0, p)
+            noise_spectrum = line_noise
             noise_cross = smooth_lines(
                 np.einsum("rpki,rpkj->kij", dev_q[:, :, K], dev_y.conj()) * scale, 8)
         motion = BasisMotion(displacement=np.stack(q_list),
                              velocity=None if not need_v else np.stack(qd_list),
                              channels=tuple(output_names[i] for i in used), lines=K,
                              force_rms=rms_p, noise_cov=motion_noise,
-                             noise_spectrum=noise_spectrum, noise_output_cross=noise_cross)
+                             noise_spectrum=noise_spectrum, noise_output_cross=noise_cross,
+                             line_noise=line_noise)
     Uf = U_all[:, K]  # (R, F0, m)
     Yf = Y_all[:, K]  # (R, F0, p)
     excited = np.tile(np.isin(K, grid.lines), R)

@@ -1,0 +1,262 @@
+"""The output-error refinement (ident.output_error, ident.harmonic_balance, ident.modal).
+
+FNSI reads the basis functions on the measured motion; with noisy outputs that motion's
+noise sits in the regressors. The refinement fits the model's own periodic steady state,
+whose basis functions read the motion the model predicts (docs/ident.md, "The output-error
+refinement"). Simulations: daq.sim's frequency-domain periodic steady state of the 3-DOF
+chain with a relative two-sided stop, sampled band-limited; 1 % white noise on every output
+(of its RMS), 16 periods averaged, as in bench/bench_parameter_search.py.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+import fnsi_lab
+from fnsi_lab.ident import fnsi
+from fnsi_lab.ident.basis import ParameterSpace
+from fnsi_lab.ident.coefficients import nonlinear_coefficients, summarize_coefficients
+from fnsi_lab.ident.config import load_ident_config, packaged_config, parse_ident_config
+from fnsi_lab.ident.errors import IdentConfigError, IdentError
+from fnsi_lab.ident.harmonic_balance import BalanceState, HarmonicBalance
+from fnsi_lab.ident.modal import ModalModel
+from fnsi_lab.ident.output_error import _Problem, refine_output_error
+from fnsi_lab.ident.periodic import with_basis
+
+sim = pytest.importorskip("fnsi_lab.daq.sim")
+from fnsi_lab.daq.multisine import multisine  # noqa: E402
+
+FS, N = 1024.0, 8192
+GAPS = np.array([4e-4, 5e-4])           # lumped_model('trilinear'), m
+CONTACT = np.array([2.0e4, 1.5e4])      # N/m
+
+
+def _chain(quantity="displacement", noise=0.01, periods=16, seed=0):
+    """The 3-DOF chain's steady state, ``periods`` periods with white output noise."""
+    model = sim.lumped_model("trilinear")
+    u = np.asarray(multisine(N, FS, (5, 60), 20.0, n_periods=3, seed=1).signal).reshape(-1, 1)
+    out = sim.simulate(model, u, FS, periodic=N, quantities=("displacement", quantity))
+    y = np.tile(getattr(out, quantity)[-N:], (periods, 1))
+    u = np.tile(u[-N:], (periods, 1))
+    y = y + np.random.default_rng(seed).standard_normal(y.shape) * np.std(y, axis=0) * noise
+    rel = out.displacement[-N:, 1] - out.displacement[-N:, 2]
+    src = {"u": u, "y": y, "fs": FS, "N": N, "channels": list(model.measured_names),
+           "quantity": quantity, "input_channels": list(model.input_names)}
+    return src, float(np.mean(rel))
+
+
+def _config(quantity="displacement", gaps="known", refine="auto"):
+    cfg = replace(load_ident_config(packaged_config("lumped-stop")), transient_periods=0,
+                  output_quantity=quantity, refine=refine)
+    if gaps == "auto":
+        cfg = replace(cfg, nonlinearities=tuple(
+            replace(nl, unknown=(ParameterSpace("g_neg"), ParameterSpace("g_pos")))
+            for nl in cfg.nonlinearities))
+    return cfg
+
+
+def _errors(result, gaps=GAPS):
+    j = result.to_json()
+    coef = np.array([c["value"] for c in j["coefficients"]]) / CONTACT - 1
+    clear = np.array(j["nonlinearities"][0]["clearances"]) / gaps - 1
+    return coef, clear, j
+
+
+@pytest.fixture(scope="module")
+def fnsi_chain():
+    """FNSI's order-6 model of the noisy chain, with its data and basis (no refinement)."""
+    src, _ = _chain()
+    res = fnsi_lab.identify(src, _config(refine="none"), order=6)
+    return res.session.data, res.session.config.nonlinearities, res.model
+
+
+# ---------------------------------------------------------------------------- modal form
+def test_modal_form_reproduces_the_state_space_model():
+    """Diagonalised and rebuilt as real 2x2 blocks, the transfer function is the same; a real
+    pole is kept as one."""
+    rng = np.random.default_rng(1)
+    a = np.diag([0.5, -0.3]) + 0.0
+    blk = 0.9 * np.array([[np.cos(0.4), -np.sin(0.4)], [np.sin(0.4), np.cos(0.4)]])
+    T = rng.standard_normal((4, 4))
+    A = T @ np.block([[blk, np.zeros((2, 2))], [np.zeros((2, 2)), a]]) @ np.linalg.inv(T)
+    B, C, D = rng.standard_normal((4, 3)), rng.standard_normal((5, 4)), rng.standard_normal((5, 3))
+    m = ModalModel.from_matrices(A, B, C, D)
+    assert m.n_pairs == 1 and m.n_real == 2
+    z = np.exp(1j * np.linspace(0.1, 3.0, 7))
+    ref = np.einsum("pn,kna->kpa", C, np.linalg.solve(z[:, None, None] * np.eye(4) - A, B)) + D
+    assert np.abs(m.transfer(z) - ref).max() < 1e-12 * np.abs(ref).max()
+    a2, b2, c2, d2 = m.matrices()
+    again = ModalModel.from_matrices(a2, b2, c2, d2).transfer(z)
+    assert np.abs(again - ref).max() < 1e-12 * np.abs(ref).max()
+    # every output row is linear in its own parameters
+    E = rng.standard_normal((7, 3)) + 1j * rng.standard_normal((7, 3))
+    y = m.regressor(z, E) @ m.row_parameters().T
+    assert np.abs(y - np.einsum("kpa,ka->kp", ref, E)).max() < 1e-12 * np.abs(y).max()
+
+
+# ---------------------------------------------------------------------------- harmonic balance
+def test_balance_of_a_noise_free_model_reproduces_the_measured_motion():
+    """FNSI's model of noise-free data predicts the motion it was identified on: its own
+    steady state agrees with the measurement to the model's error (noise-free FNSI gives the
+    contact stiffnesses within 0.01 %)."""
+    src, _ = _chain(noise=0.0, periods=2)
+    res = fnsi_lab.identify(src, _config(), order=6)
+    data, basis, model = res.session.data, res.session.config.nonlinearities, res.model
+    bal = HarmonicBalance(data, basis)
+    state = bal.solve(fnsi.transfer_discrete(model, bal.z))
+    err = np.linalg.norm(state.delta - bal.measured) / np.linalg.norm(bal.measured)
+    assert state.residual < 1e-9
+    assert err < 1e-4, err                          # measured 1e-6
+
+
+def test_balance_linearisation_is_the_derivative(fnsi_chain):
+    """``(I - T)`` of the linearisation equals the finite-difference derivative of the
+    balance's residual, and its solver inverts it (the Newton steps and the refinement's
+    sensitivities rest on both)."""
+    data, basis, model = fnsi_chain
+    bal = HarmonicBalance(data, basis)
+    G = fnsi.transfer_discrete(model, bal.z)
+    gain = np.einsum("ep,kpa,k->kea", bal.L_out, G, bal.to_displacement)[:, :, 1:]
+    state = BalanceState(delta=bal.measured.copy(), H=np.empty(0), iterations=0,
+                         residual=np.inf)
+    bal.linearise(state, gain)
+    x = (np.random.default_rng(0).standard_normal(bal.measured.shape)
+         + 1j * np.random.default_rng(1).standard_normal(bal.measured.shape))[..., None]
+    x *= np.linalg.norm(bal.measured) / np.linalg.norm(x)
+
+    def residual(d):
+        return d - np.einsum("kes,rks->rke", gain, bal.basis_spectra(d))
+
+    eps = 1e-7
+    fd = (residual(bal.measured + eps * x[..., 0]) - residual(bal.measured - eps * x[..., 0])) / (2 * eps)
+    Ax = x - np.einsum("kes,rksn->rken", gain, bal.apply_slopes(state, x))
+    assert np.linalg.norm(fd - Ax[..., 0]) < 1e-6 * np.linalg.norm(fd)   # measured 7e-10
+    back = bal.solve_linear(state, Ax, 1e-9)
+    assert np.linalg.norm(back - x) < 1e-7 * np.linalg.norm(x)
+
+
+def test_refinement_gradient_is_the_derivative_of_the_output_error(fnsi_chain):
+    """``J^T r`` of the normal equations against central differences of ``V``, for a pole,
+    an input row, a row the stop reads, a free row's own parameter and both clearances. The
+    sensitivities pass through the linearised balance (GMRES to 1e-4): agreement to 1e-3."""
+    data, basis, model = fnsi_chain
+    basis = tuple(nl.with_parameters({"g_neg": 0.98 * GAPS[0], "g_pos": 1.02 * GAPS[1]})
+                  for nl in basis)
+    data = with_basis(data, basis)
+    prob = _Problem(data, basis, ModalModel.from_matrices(model.a_d, model.b_d, model.c_d,
+                                                          model.d_d),
+                    [(0, "g_neg"), (0, "g_pos")], 1 / np.sqrt(data.noise_var), True)
+    shared, own = prob.pack(prob.start_modal, basis)
+    point, _ = prob.evaluate(shared, own)
+    _, g_s, _, _, g_o = prob.normal_equations(point)
+    sl = prob.layout.slices()
+
+    def cost(sh, ow):
+        return prob.evaluate(sh, ow, start=point["state"])[1]
+
+    for j in (0, sl["mu_im"].start, sl["beta_re"].start, sl["loop"].start,
+              sl["theta"].start, sl["theta"].start + 1):
+        h = 1e-6 * abs(shared[j])
+        e = np.zeros_like(shared)
+        e[j] = h
+        fd = (cost(shared + e, own) - cost(shared - e, own)) / (2 * h)
+        assert 2 * g_s[j] == pytest.approx(fd, rel=1e-3), j
+    h = 1e-6 * abs(own[0, 0])
+    e = np.zeros_like(own)
+    e[0, 0] = h
+    fd = (cost(shared, own + e) - cost(shared, own - e)) / (2 * h)
+    assert 2 * g_o[0, 0] == pytest.approx(fd, rel=1e-6)
+
+
+# ---------------------------------------------------------------------------- the answers
+def test_refinement_removes_the_motion_noise_bias_of_known_gaps(fnsi_chain):
+    """Known clearances, 1 % noise: FNSI's stiffnesses carry the regressors' noise (seeds
+    0-7: up to 0.73 %); refined, within 0.26 % over the same seeds (bench/RESULTS.md), the
+    misfit at the noise (1.11-1.13 noise variances; the out-of-band background's noise is
+    the rest)."""
+    data, basis, model = fnsi_chain
+    fit = refine_output_error(data, basis, model)
+    coef = np.array([c.value for c in summarize_coefficients(
+        nonlinear_coefficients(fit.model, data, fit.basis, driving_point="X3"))])
+    assert np.all(np.abs(coef / CONTACT - 1) < 0.005), coef / CONTACT - 1
+    assert fit.converged and 1.0 < fit.misfit < 1.3
+    assert fit.misfit_start > 10 * fit.misfit        # FNSI's own steady state: 35-580
+    assert fit.model.order == model.order
+
+
+@pytest.mark.parametrize("seed", [1, 6])
+def test_clearances_auto_meet_the_targets_through_the_pipeline(seed):
+    """Issue 15's targets on the chain whose gaps are a third of the relative motion's RMS,
+    1 % noise, 16 periods (where the search alone gave gaps -2.2 / -2.4 % and +2.5 / +4.1 %,
+    stiffnesses +1.7 / +2.4 % and -1.6 / -2.7 % for these seeds): every clearance within
+    2 %, every stiffness within 0.5 %. Refined: within 0.7 % and 0.18 % over 8 seeds."""
+    src, _ = _chain(seed=seed)
+    res = fnsi_lab.identify(src, _config(gaps="auto"), order=6)
+    coef, clear, j = _errors(res)
+    assert np.all(np.abs(clear) < 0.02), clear
+    assert np.all(np.abs(coef) < 0.005), coef
+    oe = j["output_error"]
+    assert oe["applied"] and oe["converged"] and oe["misfit"] < 1.3
+    assert [p["parameter"] for p in oe["parameters"]] == ["g_neg", "g_pos"]
+    # the standard deviations are the refinement's (0.13 %), not the search's curvature
+    std = np.array(j["nonlinearities"][0]["clearance_std"]) / GAPS
+    assert np.all((std > 5e-4) & (std < 5e-3))
+    assert j["timings_s"]["output_error"] > 0
+
+
+def test_velocity_outputs_clearances_auto():
+    """Velocities, 1 % noise, 16 periods: the search's gaps were +3..+22 % off and the
+    stiffnesses -2..-13 % (the integrated motion's noise); refined, within 0.1 % (3 seeds).
+    Integrated outputs carry no static position: the gaps count from the mean position."""
+    src, mean = _chain("velocity", seed=2)
+    res = fnsi_lab.identify(src, _config("velocity", gaps="auto"), order=6)
+    coef, clear, j = _errors(res, gaps=GAPS + np.array([mean, -mean]))
+    assert j["output_error"]["applied"]
+    assert np.all(np.abs(clear) < 0.01), clear
+    assert np.all(np.abs(coef) < 0.005), coef
+
+
+# ---------------------------------------------------------------------------- when it runs
+def test_auto_leaves_noise_free_data_to_fnsi():
+    src, _ = _chain(noise=0.0, periods=2)
+    res = fnsi_lab.identify(src, _config(), order=6)
+    j = res.to_json()
+    assert res.output_error is None and not j["output_error"]["applied"]
+    assert "noise-free" in j["output_error"]["reason"]
+
+
+def test_auto_leaves_a_model_that_misses_dynamics_to_fnsi():
+    """At order 4 the chain's three modes do not fit: FNSI's residual is far above what the
+    noise and the motion noise explain, and the refinement is not run."""
+    src, _ = _chain(periods=4)
+    res = fnsi_lab.identify(src, _config(), order=4)
+    oe = res.to_json()["output_error"]
+    assert not oe["applied"] and "misses dynamics" in oe["reason"]
+    assert oe["fnsi_misfit"] > 1.5 * (1 + oe["motion_noise_share"])
+
+
+def test_refine_none_and_accelerations_keep_fnsi():
+    src, _ = _chain(periods=4)
+    res = fnsi_lab.identify(src, _config(refine="none"), order=6)
+    assert res.output_error is None and "output_error" not in res.to_json()
+    src, mean = _chain("acceleration", noise=0.001, periods=4)
+    cfg = _config("acceleration", refine="output-error")
+    cfg = replace(cfg, nonlinearities=tuple(replace(nl, offset=mean) for nl in cfg.nonlinearities))
+    res = fnsi_lab.identify(src, cfg, order=6)
+    assert res.output_error is None
+    assert any("output-error refinement was not applied" in w for w in res.session.warnings)
+
+
+def test_refine_option_is_validated():
+    with pytest.raises(IdentConfigError, match="refine"):
+        parse_ident_config({"band_hz": [1, 10], "refine": "outputerror"})
+    assert parse_ident_config({"band_hz": [1, 10]}).refine == "auto"
+
+
+def test_refinement_needs_basis_functions(fnsi_chain):
+    data, _, model = fnsi_chain
+    with pytest.raises(IdentError, match="basis"):
+        refine_output_error(data, (), model)
