@@ -128,6 +128,13 @@ class ModalModel:
                 + np.einsum("pr,ra,kr->kpa", self.c_pair.conj(), self.b_pair.conj(), rm)
                 + np.einsum("pq,qa,kq->kpa", self.c_real, self.b_real, rr) + self.d[None])
 
+    def without(self, pairs: np.ndarray, real: np.ndarray) -> "ModalModel":
+        """The model less the pairs and real poles where the masks are True."""
+        kp, kr = ~np.asarray(pairs, bool), ~np.asarray(real, bool)
+        return replace(self, poles=self.poles[kp], b_pair=self.b_pair[kp],
+                       c_pair=self.c_pair[:, kp], real_poles=self.real_poles[kr],
+                       b_real=self.b_real[kr], c_real=self.c_real[:, kr])
+
     def row_parameters(self, d_free: bool = True) -> np.ndarray:
         """Each output row's own parameters ``[Re gamma, Im gamma, c, d]``, shape (p, n_own)."""
         parts = [self.c_pair.real, self.c_pair.imag, self.c_real] + ([self.d] if d_free else [])

@@ -472,8 +472,9 @@ class Identification:
         keep = np.ones(m["frequency_hz"].size, bool)
         if self.auto is not None:
             physical = [r["frequency_hz"] for r in self.auto.mdi_table() if r["physical"]]
-            if self.output_error is not None:   # the same modes, refined
-                physical = [self.output_error.refined_frequency(f) for f in physical]
+            if self.output_error is not None:   # the same modes, refined (or dropped)
+                physical = [g for g in (self.output_error.refined_frequency(f)
+                                        for f in physical) if g is not None]
             keep = np.array([any(abs(f - g) <= 1e-6 * max(g, 1e-12) for g in physical)
                              for f in m["frequency_hz"]], bool)
         return [{"frequency_hz": float(f), "damping_ratio": float(z), "stable": bool(s),
