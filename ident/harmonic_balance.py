@@ -381,7 +381,8 @@ class HarmonicBalance:
 
     # ------------------------------------------------------------------ the balance
     def solve(self, G: np.ndarray, *, basis=None, start: BalanceState | None = None,
-              tolerance: float = 1e-9, max_iterations: int = 40) -> BalanceState:
+              guess: np.ndarray | None = None, tolerance: float = 1e-9,
+              max_iterations: int = 40) -> BalanceState:
         """The predicted motions of the model with transfer function ``G``.
 
         Parameters
@@ -394,6 +395,9 @@ class HarmonicBalance:
         start : BalanceState, optional
             A previous solution: its motions start the iterations and its preconditioner is
             reused until GMRES slows down.
+        guess : complex ndarray, shape (R, F0, n_el), optional
+            A better first iterate than ``start``'s motions (e.g. extrapolated by the
+            motion's sensitivity to a parameter step).
         tolerance : float
             On ``||delta - Lambda G e(delta)|| / ||delta||``.
 
@@ -406,7 +410,8 @@ class HarmonicBalance:
         gain = np.einsum("ep,kpa,k->kea", self.L_out, G, self.to_displacement)   # (F0, n_el, m_e)
         linear = np.einsum("kei,rki->rke", gain[:, :, :self.m], self.U)
         loop_gain = gain[:, :, self.m:]
-        delta = (self.measured if start is None else start.delta).copy()
+        delta = (guess if guess is not None else self.measured if start is None
+                 else start.delta).copy()
         scale = max(float(np.linalg.norm(delta)), 1e-300)
         state = BalanceState(delta=delta, H=np.empty(0), iterations=0, residual=np.inf)
         if start is not None:   # its preconditioner serves nearby models too

@@ -299,14 +299,15 @@ class _Problem:
         return modal, tuple(basis)
 
     # -------------------------------------------------------------- evaluation
-    def evaluate(self, shared, own, start: BalanceState | None = None):
-        """``(point, cost)``; raises IdentError/BalanceError for an unusable point."""
+    def evaluate(self, shared, own, start: BalanceState | None = None, guess=None):
+        """``(point, cost)``; raises IdentError/BalanceError for an unusable point.
+        ``start``, ``guess``: see :meth:`HarmonicBalance.solve`."""
         modal, basis = self.unpack(shared, own)
         if np.any(np.abs(modal.poles) >= 1) or np.any(np.abs(modal.real_poles) >= 1):
             raise BalanceError("unstable poles")
         bal = self.balance
         G = modal.transfer(bal.z)                                    # predicted lines
-        state = bal.solve(G, basis=basis, start=start)
+        state = bal.solve(G, basis=basis, start=start, guess=guess)
         E_pred = np.concatenate([bal.U, state.H], axis=2).reshape(-1, self.m + bal.s)
         E = np.concatenate([self.data.E[:, :self.m],
                             state.H[:, bal.data_index].reshape(-1, bal.s)], axis=1)
@@ -397,6 +398,7 @@ class _Problem:
         v = np.einsum("el,kln,k->ken", Lam, direct_loop, np.tile(bal.to_displacement, self.R))
         v = v.reshape(self.R, self.F0, bal.n_el, -1)
         x = bal.solve_linear(state, v, 1e-3)
+        point["motion_sensitivity"] = x                  # (R, F0, n_el, n_s)
         # the basis spectra's response through the motion on the data's lines (the direct
         # part of a basis parameter is already in _direct)
         dH = bal.apply_slopes(state, x)[:, bal.data_index].reshape(-1, bal.s, v.shape[3])
@@ -558,9 +560,11 @@ def refine_output_error(data: FrequencyData, basis: Sequence[Nonlinearity],
         accepted = False
         while lam < 1e8:
             step_s, step_o = _damped_step(A, g_s, N, M, g_o, lam)
+            # the predicted motion, extrapolated by its sensitivity, starts the balance
+            guess = point["state"].delta + point["motion_sensitivity"] @ step_s
             try:
                 new, c_new = prob.evaluate(point["shared"] + step_s, point["own"] + step_o,
-                                           start=point["state"])
+                                           start=point["state"], guess=guess)
             except IdentError:
                 lam *= 10
                 continue
