@@ -35,6 +35,7 @@ import scipy.linalg as sla
 
 from fnsi_lab.ident.basis import Nonlinearity
 from fnsi_lab.ident.errors import IdentError
+from fnsi_lab.ident.modal import LowFrequency
 from fnsi_lab.ident.periodic import FrequencyData
 
 __all__ = ["HarmonicBalance", "BalanceState", "BalanceError"]
@@ -108,18 +109,16 @@ class HarmonicBalance:
         self.fs = float(data.sample_rate_hz)
         t = _QUANTITY_POWER[data.output_quantity]
         data_lines = np.asarray(motion.lines)
-        if t == 2:
-            # an acceleration model's G / (j w)^2 blows up under the band unless its static
-            # acceleration vanishes exactly, which a fitted model's does not
-            raise IdentError("the harmonic balance of acceleration outputs is not supported "
-                             "(the model cannot predict the motion under the band)")
-        # Velocity outputs: the lines under the band are predicted too. Measured, they hold
-        # the outputs' noise times 1 / w, which read as exact motion biased the refinement
-        # (3-DOF chain, velocities with 0.1 % noise: misfit 79 noise variances; with the true
-        # motion under the band 1.1). Displacements keep the measured lines there: a
-        # structure's modes under the band (a suspension) are not in the model. Predicting
-        # them too did help the 3-DOF chain with 4 periods (gaps within 0.51 % against 0.87 %).
-        below = np.arange(1, data_lines.min()) if t == 1 else np.zeros(0, int)
+        # Velocity and acceleration outputs: the lines under the band are predicted too.
+        # Measured, they hold the outputs' noise times 1 / w^t, which read as exact motion
+        # biased the refinement (3-DOF chain, velocities with 0.1 % noise: misfit 79 noise
+        # variances; with the true motion under the band 1.1). There the model is read less
+        # its static terms (:class:`ident.modal.LowFrequency`): a fitted acceleration model's
+        # G / (j w)^2 blows up at low frequency, and the balance diverged. Displacements keep
+        # the measured lines: a structure's modes under the band (a suspension) are not in
+        # the model. Predicting them did help the 3-DOF chain with 4 periods (gaps within
+        # 0.51 % against 0.87 %).
+        below = np.arange(1, data_lines.min()) if t > 0 else np.zeros(0, int)
         #: (F0,) the predicted lines: the processed ones, and for integrated outputs those below
         self.K = np.union1d(below, data_lines).astype(int)
         #: positions of the processed lines among the predicted ones
@@ -150,8 +149,13 @@ class HarmonicBalance:
         #: (F0,) the model's frequency variable on the predicted lines (the data's line map)
         if data.time_base == "bilinear":
             self.z = np.exp(2j * np.arctan(self.omega_lines * data.bilinear_period_s / 2))
+            rate = float(data.bilinear_period_s)           # dz / d(j w) at 0
         else:
             self.z = np.exp(2j * np.pi * self.K / self.N)
+            rate = 1.0 / self.fs
+        #: where the model is read less its static terms (None: nowhere)
+        self.low = (LowFrequency(mask=np.isin(self.K, below), jw=1j * self.omega_lines,
+                                 rate=rate, order=t) if below.size else None)
         # the forces: measured on the processed lines, none under the band (not excited)
         self.U = np.zeros((self.R, self.F0, self.m), complex)
         self.U[:, self.data_index] = data.E[:, :self.m].reshape(self.R, -1, self.m)
@@ -424,7 +428,7 @@ class HarmonicBalance:
             # that Newton steps could reach from the measured motion)
             total = state.iterations
             state.delta = linear.copy()
-            for share in (0.25, 0.5, 0.75, 1.0):
+            for share in (0.125, 0.25, 0.375, 0.5, 0.625, 0.75, 0.875, 1.0):
                 done = self._newton(state, linear, share * loop_gain, basis, scale,
                                     tolerance if share == 1.0 else 1e-6, max_iterations)
                 total += state.iterations

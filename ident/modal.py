@@ -21,10 +21,63 @@ import numpy as np
 
 from fnsi_lab.ident.errors import IdentError
 
-__all__ = ["ModalModel"]
+__all__ = ["ModalModel", "LowFrequency", "pole_kernel"]
 
 #: Eigenvector matrices beyond this condition number have no usable modal form.
 _MODAL_COND_LIMIT = 1e8
+
+
+@dataclass(frozen=True)
+class LowFrequency:
+    """Lines where the model is read less its Taylor terms at ``z = 1`` (zero frequency).
+
+    A velocity (acceleration) frequency response vanishes at zero frequency like ``j w``
+    (``(j w)^2``); a fitted model's does not exactly, and read under the processed band as a
+    displacement, ``G / (j w)^t``, its static terms blow up. On these lines the model is
+    read as ``G(z) - G(1)`` (``t = 1``) or ``G(z) - G(1) - j w (dz/d(j w)) G'(1)``
+    (``t = 2``), the physical behaviour near zero frequency.
+
+    Attributes
+    ----------
+    mask : bool ndarray, shape (F,)
+    jw : complex ndarray, shape (F,)
+        ``j w_k`` (rad/s) of every line.
+    rate : float
+        ``dz / d(j w)`` at ``w = 0`` (s): ``1/fs`` for ``z = exp(j w / fs)``, ``T`` for the
+        bilinear map.
+    order : int
+        ``t``, the Taylor terms removed.
+    """
+
+    mask: np.ndarray
+    jw: np.ndarray
+    rate: float
+    order: int
+
+    def tiled(self, times: int) -> "LowFrequency":
+        """The same for ``times`` stacked repetitions of the lines (realisations)."""
+        return replace(self, mask=np.tile(self.mask, times), jw=np.tile(self.jw, times))
+
+
+def pole_kernel(z: np.ndarray, mu: np.ndarray, low: LowFrequency | None = None):
+    """``1 / (z_k - mu_r)`` and its derivative in ``mu_r``, shapes (F, n) each.
+
+    On the lines of ``low``, less the Taylor terms at ``z = 1``:
+    ``- 1/(1 - mu) + j w rate / (1 - mu)^2`` (the second for ``order >= 2``).
+    """
+    z, mu = np.asarray(z), np.asarray(mu)
+    k = 1.0 / (z[:, None] - mu[None])
+    dk = k ** 2
+    if low is not None and mu.size and np.any(low.mask):
+        m = low.mask
+        a = 1.0 / (1.0 - mu)
+        k[m] -= a[None]
+        dk[m] -= (a ** 2)[None]
+        if low.order >= 2:
+            w = (low.jw[m] * low.rate)[:, None]
+            k[m] += w * (a ** 2)[None]
+            dk[m] += 2.0 * w * (a ** 3)[None]
+    return k, dk
 
 
 @dataclass(frozen=True)
@@ -118,15 +171,18 @@ class ModalModel:
         c[:, 2 * nc:] = self.c_real
         return a, b, c, self.d.copy()
 
-    def transfer(self, z: np.ndarray) -> np.ndarray:
-        """``G(z)``, shape (F, p, m_e)."""
+    def transfer(self, z: np.ndarray, low: LowFrequency | None = None) -> np.ndarray:
+        """``G(z)``, shape (F, p, m_e) (on ``low``'s lines less its Taylor terms at 1)."""
         z = np.asarray(z)
-        rp = 1.0 / (z[:, None] - self.poles[None])
-        rm = 1.0 / (z[:, None] - self.poles.conj()[None])
-        rr = 1.0 / (z[:, None] - self.real_poles[None])
+        rp, _ = pole_kernel(z, self.poles, low)
+        rm, _ = pole_kernel(z, self.poles.conj(), low)
+        rr, _ = pole_kernel(z, self.real_poles, low)
+        direct = np.broadcast_to(self.d[None], (z.size,) + self.d.shape).copy()
+        if low is not None:
+            direct[low.mask] = 0.0   # D is part of G(1)
         return (np.einsum("pr,ra,kr->kpa", self.c_pair, self.b_pair, rp)
                 + np.einsum("pr,ra,kr->kpa", self.c_pair.conj(), self.b_pair.conj(), rm)
-                + np.einsum("pq,qa,kq->kpa", self.c_real, self.b_real, rr) + self.d[None])
+                + np.einsum("pq,qa,kq->kpa", self.c_real, self.b_real, rr) + direct)
 
     def without(self, pairs: np.ndarray, real: np.ndarray) -> "ModalModel":
         """The model less the pairs and real poles where the masks are True."""
@@ -148,21 +204,27 @@ class ModalModel:
         d = theta[:, 2 * nc + nr:] if d_free else self.d
         return replace(self, c_pair=c_pair, c_real=c_real, d=np.array(d, float))
 
-    def regressor(self, z: np.ndarray, E: np.ndarray, d_free: bool = True) -> np.ndarray:
+    def regressor(self, z: np.ndarray, E: np.ndarray, d_free: bool = True,
+                  low: LowFrequency | None = None) -> np.ndarray:
         """Per line, the row-independent factors of the output, shape (F, n_own) complex.
 
         ``Y_hat[k, o] = regressor[k] @ row_parameters()[o]``; the columns are
         ``xi+ + xi-``, ``j (xi+ - xi-)``, ``zeta`` and (``d_free``) ``E``, with
         ``xi+_r = beta_r^T E_k / (z_k - mu_r)``, ``xi-_r = conj(beta_r)^T E_k / (z_k - conj mu_r)``
-        and ``zeta_q = b_q^T E_k / (z_k - nu_q)``.
+        and ``zeta_q = b_q^T E_k / (z_k - nu_q)`` (the kernels of :func:`pole_kernel`).
         """
-        xp, xm, zeta = self.modal_inputs(z, E)
-        parts = [xp + xm, 1j * (xp - xm), zeta] + ([E.astype(complex)] if d_free else [])
+        xp, xm, zeta = self.modal_inputs(z, E, low)
+        parts = [xp + xm, 1j * (xp - xm), zeta]
+        if d_free:
+            direct = E.astype(complex)
+            if low is not None:
+                direct[low.mask] = 0.0
+            parts.append(direct)
         return np.concatenate(parts, axis=1)
 
-    def modal_inputs(self, z: np.ndarray, E: np.ndarray):
+    def modal_inputs(self, z: np.ndarray, E: np.ndarray, low: LowFrequency | None = None):
         """``(xi+, xi-, zeta)``: shapes (F, nc), (F, nc), (F, nr)."""
-        xp = (E @ self.b_pair.T) / (z[:, None] - self.poles[None])
-        xm = (E @ self.b_pair.conj().T) / (z[:, None] - self.poles.conj()[None])
-        zeta = (E @ self.b_real.T) / (z[:, None] - self.real_poles[None])
+        xp = (E @ self.b_pair.T) * pole_kernel(z, self.poles, low)[0]
+        xm = (E @ self.b_pair.conj().T) * pole_kernel(z, self.poles.conj(), low)[0]
+        zeta = (E @ self.b_real.T) * pole_kernel(z, self.real_poles, low)[0]
         return xp, xm, zeta

@@ -339,7 +339,9 @@ def _refine(session: IdentSession, ident: "Identification") -> Any:
     try:
         start = _structural_start(session, ident)
         fit = refine_output_error(data, cfg.nonlinearities, start, estimated=estimated,
-                                  d_zero=session.d_zero, watch=_answer_values(session))
+                                  d_zero=session.d_zero, watch=_answer_values(session),
+                                  give_up_above=(10 * MAX_MISFIT if cfg.refine == "auto"
+                                                 else None))
     except IdentError as exc:
         decision["reason"] = f"not applied: {exc}"
         session.warnings.append(f"the output-error refinement was not applied ({exc}); "
