@@ -180,16 +180,19 @@ class HarmonicBalance:
     def _signals(self, delta_r: np.ndarray, r: int, n_grid: int):
         """Time signals of the relative motions (and velocities) of realisation ``r``.
 
-        ``delta_r`` (F0, n_el) on the processed lines; returns ``(q, q_dot)`` each of shape
-        (n_grid, n_el) on a grid of ``n_grid`` points per period."""
+        ``delta_r`` (F0, n_el) on the predicted lines; returns ``(q, q_dot)`` each of shape
+        (n_grid, n_el) on a grid of ``n_grid`` points per period (``q_dot`` None when no
+        element reads a velocity)."""
         n_bins = n_grid // 2 + 1
         spec = np.zeros((self.n_el, n_bins), complex)
         nb = min(n_bins, self.background.shape[2])
         spec[:, :nb] = self.background[r, :, :nb]
         spec[:, self.K] = delta_r.T
-        omega = 2 * np.pi * np.arange(n_bins) * self.fs / self.N
         q = np.fft.irfft(spec * n_grid, n=n_grid, axis=1).T
-        q_dot = np.fft.irfft(spec * (1j * omega) * n_grid, n=n_grid, axis=1).T
+        q_dot = None
+        if self.column_velocity.any():
+            omega = 2 * np.pi * np.arange(n_bins) * self.fs / self.N
+            q_dot = np.fft.irfft(spec * (1j * omega) * n_grid, n=n_grid, axis=1).T
         return q, q_dot
 
     def _evaluate(self, basis, q: np.ndarray, q_dot: np.ndarray) -> np.ndarray:
@@ -209,22 +212,22 @@ class HarmonicBalance:
 
     def _slope_spectra(self, delta: np.ndarray, basis) -> np.ndarray:
         """Spectra of ``dh_a / d(argument)`` up to ``2 k_max``, in FFT order on the
-        convolution grid: shape (R, Nc, s)."""
+        convolution grid: shape (R, Nc, s). Central differences (a stop's slope is 0, 1
+        or 1/2 on a sample at its kink)."""
         out = np.zeros((self.R, self.Nc, self.s), complex)
         top = 2 * self.k_max
         for r in range(self.R):
             q, qd = self._signals(delta[r], r, self.Nf)
-            arg = np.where(self.column_velocity[None], qd[:, self.column_element],
-                           q[:, self.column_element])
-            step = 1e-6 * np.maximum(np.sqrt(np.mean(arg ** 2, axis=0)), 1e-300)
             cols = []
-            for e, nl in enumerate(self.basis):
-                a = self.column_element == e
-                dq = np.where(nl.needs_velocity, 0.0, step[a][0])
-                dv = np.where(nl.needs_velocity, step[a][0], 0.0)
-                hi = nl.evaluate(q[:, e] + dq, qd[:, e] + dv if nl.needs_velocity else None)
-                lo = nl.evaluate(q[:, e] - dq, qd[:, e] - dv if nl.needs_velocity else None)
-                cols.append((hi - lo) / (2 * step[a][None]))
+            for e, nl in enumerate(basis):
+                if nl.needs_velocity:
+                    step = 1e-6 * max(float(np.sqrt(np.mean(qd[:, e] ** 2))), 1e-300)
+                    slope = (nl.evaluate(q[:, e], qd[:, e] + step)
+                             - nl.evaluate(q[:, e], qd[:, e] - step)) / (2 * step)
+                else:
+                    step = 1e-6 * max(float(np.sqrt(np.mean(q[:, e] ** 2))), 1e-300)
+                    slope = (nl.evaluate(q[:, e] + step) - nl.evaluate(q[:, e] - step)) / (2 * step)
+                cols.append(slope)
             full = np.fft.fft(np.concatenate(cols, axis=1), axis=0) / self.Nf
             out[r, :top + 1] = full[:top + 1]
             out[r, self.Nc - top:] = full[self.Nf - top:]
@@ -298,9 +301,9 @@ class HarmonicBalance:
         out = np.broadcast_to(np.eye(self.n_el, dtype=complex),
                               (self.F0, self.n_el, self.n_el)).copy()
         for a in range(self.s):
-            w = (1j * self.omega_lines) if self.column_velocity[a] else 1.0
-            out[:, :, self.column_element[a]] -= gain[:, :, a] * (slopes_r[0, a] * w)[..., None] \
-                if np.ndim(w) else gain[:, :, a] * slopes_r[0, a]
+            # a velocity argument's perturbation is j w times the motion's
+            w = 1j * self.omega_lines if self.column_velocity[a] else np.ones(self.F0)
+            out[:, :, self.column_element[a]] -= gain[:, :, a] * (slopes_r[0, a] * w)[:, None]
         return out
 
     def linearise(self, state: BalanceState, loop_gain: np.ndarray, basis=None, *,
