@@ -128,12 +128,19 @@ def _print_parameter_summary(res: dict, out=None) -> None:
            else "")
     print(f"basis parameters from the data (order {search['order']}, "
           f"{search['n_evaluations']} fits, {search['timings_s']['total']:.2f} s{fit}):", file=out)
+    refined = {(p["name"], p["parameter"]): p
+                for p in (res.get("output_error") or {}).get("parameters") or []
+                if (res.get("output_error") or {}).get("applied")}
     for nl in res["nonlinearities"]:
         for par, ob in (nl.get("objective") or {}).items():
-            value = (nl[par] if par in ("exponent", "offset") else
-                     nl["clearances"][0 if par in ("g_neg", "clearance") else 1])
-            std = ob.get("std")
+            side = 0 if par in ("g_neg", "clearance") else 1
+            value = nl[par] if par in ("exponent", "offset") else nl["clearances"][side]
+            std = (nl.get(f"{par}_std") if par in ("exponent", "offset")
+                   else (nl.get("clearance_std") or [None, None])[side])
             unc = f" +- {std:.2g}" if std is not None and np.isfinite(std) else ""
+            if (nl["name"], par) in refined:
+                unc += (f" (output-error refinement; the search gave "
+                        f"{refined[(nl['name'], par)]['start']:.6g})")
             err = ""
             errs = nl.get("clearance_error_percent")
             if errs and par not in ("exponent", "offset"):
@@ -147,8 +154,31 @@ def _print_parameter_summary(res: dict, out=None) -> None:
                   f"  (min {np.nanmin(ob['relative_model_error']):.3g})", file=out)
 
 
-def _print_auto_summary(res: Any, out=None, warnings: list | tuple = ()) -> None:
-    """Summary of a robust-pipeline result (:class:`~fnsi_lab.ident.auto_result.AutoResult`)."""
+def _print_refinement(res: dict, out=None) -> None:
+    """The output-error refinement (the JSON dict's ``output_error``): whether it ran, how it
+    went, and the answer it gave."""
+    out = out or sys.stdout
+    oe = res.get("output_error")
+    if not oe:
+        return
+    if not oe.get("applied"):
+        print(f"output-error refinement: not run ({oe.get('reason')})", file=out)
+        return
+    dropped = oe.get("dropped_modes_hz") or []
+    print(f"output-error refinement (docs/ident.md): misfit {oe['misfit_start']:.3g} -> "
+          f"{oe['misfit']:.3g} noise variances in {oe['iterations']} steps"
+          + (f"; modes it dropped: {', '.join(f'{f:.4g} Hz' for f in dropped)}" if dropped
+             else "") + "; the answer:", file=out)
+    for c in res["coefficients"]:
+        err = (f"  error {c['value_error_percent']:+.3f} %"
+               if c.get("value_error_percent") is not None else "")
+        print(f"  {c['name']}: value {c['value']:.6g}{err}", file=out)
+
+
+def _print_auto_summary(res: Any, out=None, warnings: list | tuple = (),
+                        refined: bool = False) -> None:
+    """Summary of a robust-pipeline result (:class:`~fnsi_lab.ident.auto_result.AutoResult`);
+    ``refined``: the answer is the output-error refinement's (printed after)."""
     out = out or sys.stdout
     ic = res.information_criterion
     print(f"information criterion ({ic.criterion}, band {ic.band}): order {res.selected_order}; "
@@ -180,6 +210,8 @@ def _print_auto_summary(res: Any, out=None, warnings: list | tuple = ()) -> None
                    if c.get("value_error_percent") is not None else "")
             mark = " <- answer" if key == answer or (answer == "full" and key == "selected"
                                                      and res.mdi_order == res.selected_order) else ""
+            if mark and refined:
+                mark = " <- FNSI's answer, refined below"
             print(f"  {label} {c['name']}: value {c['value']:.6g}{err} (LS; mean Re "
                   f"{c['mean_real']:.6g}, std {c['std_real']:.3g}){mark}", file=out)
     for w in warnings:
@@ -213,9 +245,11 @@ def run_ident(args: argparse.Namespace) -> int:
     res = result.to_json()
     if not args.quiet and args.json_out != "-":
         _print_parameter_summary(res)
+        refined = bool((res.get("output_error") or {}).get("applied"))
         if result.auto is not None:
-            _print_auto_summary(result.auto, warnings=res["warnings"])
+            _print_auto_summary(result.auto, warnings=res["warnings"], refined=refined)
         else:
             _print_summary(res)
+        _print_refinement(res)
     write_json(res, args.json_out, force=True)
     return 0

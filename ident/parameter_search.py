@@ -230,6 +230,9 @@ class ParameterSearchResult:
         With the noise correction: the noise-weighted squared residual at the estimate over
         the noise-weighted output noise variance (about 1 when the model explains the data
         to the noise; NaN otherwise).
+    motion_noise_warnings : list of str
+        The ``warnings`` about what the measured motion's noise does to the estimates (an
+        output-error refinement that reads no measured motion makes them moot).
     """
 
     basis: tuple[Nonlinearity, ...]
@@ -241,6 +244,7 @@ class ParameterSearchResult:
     timings_s: dict = field(default_factory=dict)
     warnings: list = field(default_factory=list)
     noise_misfit: float = float("nan")
+    motion_noise_warnings: list = field(default_factory=list)
 
     def for_element(self, name: str) -> list[ParameterEstimate]:
         """Estimates of the element ``name``."""
@@ -915,7 +919,7 @@ def _search(data: FrequencyData, basis: Sequence[Nonlinearity], *, order: int, d
             refusal.restarted = restarted_at_all   # estimate_basis_parameters may retry
             raise
         estimates.append(est)
-    notes = [f"nonlinearity {e.unknown.name!r}: {e.unknown.parameter} = {e.value:.4g} was "
+    noise_notes = [f"nonlinearity {e.unknown.name!r}: {e.unknown.parameter} = {e.value:.4g} was "
              f"estimated from a relative motion with noise {e.motion_noise_std:.3g} "
              f"({100 * e.motion_noise_std / e.value:.2g} % of it) per sample; "
              + ("its first-order effect was removed; what remains grows with that ratio and "
@@ -927,6 +931,9 @@ def _search(data: FrequencyData, basis: Sequence[Nonlinearity], *, order: int, d
                 "'Unknown basis parameters'): average more periods")
              for e in estimates
              if e.unknown.reach and e.motion_noise_std and e.motion_noise_std > 5e-3 * e.value]
+    if any(e.unknown.reach for e in estimates) and not correct:
+        noise_notes.extend(_uncorrected_motion_noise(data, integrated))
+    notes = list(noise_notes)
     if misfit > _MAX_NOISE_MISFIT:
         notes.append(f"the model at the estimated parameters leaves residuals {misfit:.3g}x the "
                      "output noise (noise-weighted; 1.2-1.5 where the search found the truth): "
@@ -941,11 +948,9 @@ def _search(data: FrequencyData, basis: Sequence[Nonlinearity], *, order: int, d
                          "static position; a stop whose contacts are asymmetric shifts that "
                          "mean); the contact stiffnesses do not depend on it (docs/ident.md, "
                          "'Unknown basis parameters')")
-        if not correct:
-            notes.extend(_uncorrected_motion_noise(data, integrated))
     return ParameterSearchResult(_resolve(basis, unknowns, values), estimates, v_best, order,
                                  n_eval[0], i_search, {"total": time.perf_counter() - t0}, notes,
-                                 noise_misfit=misfit)
+                                 noise_misfit=misfit, motion_noise_warnings=noise_notes)
 
 
 def _order_by_information_criterion(data: FrequencyData, basis: Sequence[Nonlinearity],

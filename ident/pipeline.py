@@ -356,6 +356,9 @@ def _refine(session: IdentSession, ident: "Identification") -> Any:
     decision["applied"] = True
     session.config = replace(cfg, nonlinearities=fit.basis)
     session.data = with_basis(data, fit.basis)
+    if fit.parameters and search is not None:   # refined values read no measured motion
+        moot = set(search.motion_noise_warnings)
+        session.warnings = [w for w in session.warnings if w not in moot]
     return fit
 
 
