@@ -340,7 +340,7 @@ def _refine(session: IdentSession, ident: "Identification") -> Any:
         start = _structural_start(session, ident)
         fit = refine_output_error(data, cfg.nonlinearities, start, estimated=estimated,
                                   d_zero=session.d_zero, watch=_answer_values(session),
-                                  give_up_above=(10 * MAX_MISFIT if cfg.refine == "auto"
+                                  give_up_above=(100 * MAX_MISFIT if cfg.refine == "auto"
                                                  else None))
     except IdentError as exc:
         decision["reason"] = f"not applied: {exc}"
