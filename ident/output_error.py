@@ -576,8 +576,9 @@ def refine_output_error(data: FrequencyData, basis: Sequence[Nonlinearity],
     watched = None
     previous_cost = np.inf
     dropped: list[complex] = []
+    normal = None
     for it in range(1, max_iterations + 1):
-        A, g_s, N, M, g_o = prob.normal_equations(point)
+        normal = A, g_s, N, M, g_o = prob.normal_equations(point)
         accepted = False
         while lam < 1e8:
             step_s, step_o = _damped_step(A, g_s, N, M, g_o, lam)
@@ -607,7 +608,7 @@ def refine_output_error(data: FrequencyData, basis: Sequence[Nonlinearity],
                             estimated, weights, d_free=not d_zero)
             shared, own = prob.pack(prob.start_modal, point["basis"])
             point, cost = prob.evaluate(shared, own, start=point["state"])
-            lam, watched = 1e-3, None
+            lam, watched, normal = 1e-3, None, None
             continue
         settled = False
         if accepted and watch is not None:
@@ -625,7 +626,10 @@ def refine_output_error(data: FrequencyData, basis: Sequence[Nonlinearity],
                              "explain the data")
         previous_cost = cost
     timings["iterations"] = time.perf_counter() - t0 - timings["start"]
-    A, g_s, N, M, g_o = prob.normal_equations(point)
+    # the covariance from the last normal equations when the fit stopped on a negligible
+    # step (they belong to the point before it), else from fresh ones
+    A, g_s, N, M, g_o = normal if converged and normal is not None else \
+        prob.normal_equations(point)
     n_par = A.shape[0] + N.shape[0] * prob.layout.n_own
     s2 = cost / max(2 * n_lines_out - n_par, 1)
     cov = _shared_covariance(A, N, M) * s2
