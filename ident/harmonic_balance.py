@@ -3,7 +3,8 @@
 FNSI evaluates the basis functions on the *measured* motion, noise included. The model's own
 periodic steady state reads them on the motion the model predicts instead. For the elements
 ``e`` of the basis (arguments ``delta_e = L_e^T q``) the predicted relative motions on the
-processed lines ``k`` solve
+processed lines ``k`` (for velocity and acceleration outputs also the lines under the band,
+:class:`ident.modal.LowFrequency`) solve
 
     ``delta_e(k) = Lambda_e(k) G(z_k) [P(k); H(delta)(k)]``,  ``Lambda_e(k) = L_e^T / (j w_k)^t``
 
@@ -13,12 +14,13 @@ other line (the measured motion there, its lines below 4x their noise removed wh
 period-to-period spread gives that noise). The basis functions are evaluated on the
 band-limited fine grid of :mod:`ident.periodic` (``basis_oversample`` points per sample).
 
-The equations are solved by Newton-like iterations whose linearisation keeps the coupling
-of the *strong* lines (those that hold all but ``1e-4`` of the motion's energy, the
-excitation's lines in practice) exactly, by a dense LU, and lets the weak lines follow
-(block lower-triangular approximation). The same linearisation gives the sensitivity of the
-predicted motion to the model's parameters (:meth:`HarmonicBalance.sensitivity`), used by
-:mod:`ident.output_error`. docs/ident.md, "The output-error refinement", explains why.
+The equations are solved by damped Newton steps (switching the nonlinear forces on in steps
+when that fails from the measured motion). Each step solves the linearised balance by GMRES,
+preconditioned by a dense LU of the coupling between the *strong* lines (those that hold all
+but ``1e-4`` of the motion's energy, the excitation's lines in practice), the weak lines
+following them. The same linearisation gives the predicted motion's sensitivity to the
+model's parameters (:meth:`HarmonicBalance.solve_linear`, :meth:`HarmonicBalance.apply_slopes`),
+used by :mod:`ident.output_error`. docs/ident.md, "The output-error refinement", explains why.
 
 Shapes: ``R`` realisations, ``F0`` lines per realisation, ``n_el`` elements, ``s`` basis
 columns, ``m`` forces; predicted motions ``(R, F0, n_el)`` complex (numpy DFT over one
@@ -33,7 +35,6 @@ import numpy as np
 import scipy.fft as sfft
 import scipy.linalg as sla
 
-from fnsi_lab.ident.basis import Nonlinearity
 from fnsi_lab.ident.errors import IdentError
 from fnsi_lab.ident.modal import LowFrequency
 from fnsi_lab.ident.periodic import FrequencyData
@@ -477,7 +478,9 @@ class HarmonicBalance:
 
 
 def _gmres(apply, precondition, b: np.ndarray, tolerance: float, max_iterations: int):
-    """Right-preconditioned GMRES for a *real*-linear operator on complex arrays: ``(x, converged)``.
+    """Right-preconditioned GMRES for a *real*-linear operator on complex arrays.
+
+    Returns ``(x, converged)``.
 
     The operator involves complex conjugates (the spectrum of a real signal), so it is linear
     over the reals only: Krylov vectors are complex arrays, inner products ``Re <x, y>`` and

@@ -354,7 +354,8 @@ class _Problem:
             ep = E[:, None, :] * rp[:, :, None]      # (F, nc, m_e)
             em = E[:, None, :] * rm[:, :, None]
             dre = g[None, :, :, None] * ep[:, None] + g.conj()[None, :, :, None] * em[:, None]
-            dim = 1j * (g[None, :, :, None] * ep[:, None] - g.conj()[None, :, :, None] * em[:, None])
+            dim = 1j * (g[None, :, :, None] * ep[:, None]
+                        - g.conj()[None, :, :, None] * em[:, None])
             out[:, :, sl["beta_re"]] = dre[:, :, lay.beta_free]
             out[:, :, sl["beta_im"]] = dim[:, :, lay.beta_free]
         if lay.n_b:

@@ -132,7 +132,8 @@ def test_balance_linearisation_is_the_derivative(fnsi_chain):
         return d - np.einsum("kes,rks->rke", gain, bal.basis_spectra(d))
 
     eps = 1e-7
-    fd = (residual(bal.measured + eps * x[..., 0]) - residual(bal.measured - eps * x[..., 0])) / (2 * eps)
+    fd = (residual(bal.measured + eps * x[..., 0])
+          - residual(bal.measured - eps * x[..., 0])) / (2 * eps)
     Ax = x - np.einsum("kes,rksn->rken", gain, bal.apply_slopes(state, x))
     assert np.linalg.norm(fd - Ax[..., 0]) < 1e-6 * np.linalg.norm(fd)   # measured 7e-10
     back = bal.solve_linear(state, Ax, 1e-9)
