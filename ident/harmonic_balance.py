@@ -98,9 +98,14 @@ class HarmonicBalance:
         With the motion of the basis channels (:attr:`FrequencyData.motion`).
     basis : sequence of Nonlinearity
         Every parameter known (the values at which the balance is evaluated by default).
+    predict_below : bool, optional
+        Predict the lines under the processed band too (default: for velocity and
+        acceleration outputs, whose measured lines there carry the noise times ``1/w^t``).
+        Displacements need the period-to-period noise (``motion.line_noise``) for it: the
+        caller checks the prediction against the measurement there (:meth:`below_band_misfit`).
     """
 
-    def __init__(self, data: FrequencyData, basis):
+    def __init__(self, data: FrequencyData, basis, *, predict_below: bool | None = None):
         motion = data.motion
         if motion is None:
             raise IdentError("the harmonic balance needs the motion of the basis channels")
@@ -110,16 +115,18 @@ class HarmonicBalance:
         self.fs = float(data.sample_rate_hz)
         t = _QUANTITY_POWER[data.output_quantity]
         data_lines = np.asarray(motion.lines)
-        # Velocity and acceleration outputs: the lines under the band are predicted too.
-        # Measured, they hold the outputs' noise times 1 / w^t, which read as exact motion
-        # biased the refinement (3-DOF chain, velocities with 0.1 % noise: misfit 79 noise
-        # variances; with the true motion under the band 1.1). There the model is read less
-        # its static terms (:class:`ident.modal.LowFrequency`): a fitted acceleration model's
-        # G / (j w)^2 blows up at low frequency, and the balance diverged. Displacements keep
-        # the measured lines: a structure's modes under the band (a suspension) are not in
-        # the model. Predicting them did help the 3-DOF chain with 4 periods (gaps within
-        # 0.51 % against 0.87 %).
-        below = np.arange(1, data_lines.min()) if t > 0 else np.zeros(0, int)
+        # The lines under the band: measured, they hold noise that the refinement takes for
+        # motion (3-DOF chain, 1 % noise, 16 periods: the gaps scattered 2.3x their standard
+        # deviation, 1.3x with those lines predicted; velocities with 0.1 % noise, whose
+        # noise grows as 1 / w there: misfit 79 noise variances, predicted 1.1). Velocity
+        # and acceleration models are read there less their static terms
+        # (:class:`ident.modal.LowFrequency`): a fitted acceleration model's G / (j w)^2 blows
+        # up at low frequency, and the balance diverged.
+        if predict_below is None:
+            predict_below = t > 0
+        if predict_below and t == 0 and motion.line_noise is None:
+            predict_below = False        # no noise to check the prediction against
+        below = np.arange(1, data_lines.min()) if predict_below else np.zeros(0, int)
         #: (F0,) the predicted lines: the processed ones, and for integrated outputs those below
         self.K = np.union1d(below, data_lines).astype(int)
         #: positions of the processed lines among the predicted ones
@@ -154,9 +161,11 @@ class HarmonicBalance:
         else:
             self.z = np.exp(2j * np.pi * self.K / self.N)
             rate = 1.0 / self.fs
+        #: (F0,) bool: the predicted lines under the band (None: none)
+        self.low_lines = np.isin(self.K, below) if below.size else None
         #: where the model is read less its static terms (None: nowhere)
-        self.low = (LowFrequency(mask=np.isin(self.K, below), jw=1j * self.omega_lines,
-                                 rate=rate, order=t) if below.size else None)
+        self.low = (LowFrequency(mask=self.low_lines, jw=1j * self.omega_lines,
+                                 rate=rate, order=t) if below.size and t > 0 else None)
         # the forces: measured on the processed lines, none under the band (not excited)
         self.U = np.zeros((self.R, self.F0, self.m), complex)
         self.U[:, self.data_index] = data.E[:, :self.m].reshape(self.R, -1, self.m)
@@ -165,8 +174,11 @@ class HarmonicBalance:
                                axis=2) / self.Nf                       # (R, n_el, Nf/2+1)
         self.measured = np.moveaxis(measured[:, :, self.K], 1, 2)      # (R, F0, n_el)
         background = measured.copy()
+        #: (n_el, F0) the measured motion's noise variance per predicted line (None: unknown)
+        self.line_variance = None
         if motion.line_noise is not None:
             var = np.einsum("ei,kij,ej->ek", L_mot, motion.line_noise, L_mot).real
+            self.line_variance = var[:, self.K]
             n = var.shape[1]
             weak = np.abs(background[:, :, :n]) ** 2 < _BACKGROUND_MIN_SNR * var[None]
             weak[:, :, 0] = False            # the static position is one well-averaged line
@@ -176,6 +188,17 @@ class HarmonicBalance:
         self.background = background
         self.background_kept = (None if motion.line_noise is None
                                 else int(np.count_nonzero(np.abs(background[0]) > 0)))
+
+    def below_band_misfit(self, state: BalanceState) -> float | None:
+        """Mean ``|measured - predicted|^2 / noise variance`` over the predicted lines under
+        the band (about 1 where the model describes the structure there; None without such
+        lines or a noise estimate)."""
+        if self.low_lines is None or not self.low_lines.any() or self.line_variance is None:
+            return None
+        m = self.low_lines
+        diff = np.abs(self.measured[:, m] - state.delta[:, m]) ** 2          # (R, n, n_el)
+        var = np.maximum(self.line_variance[:, m].T, 1e-300)[None]
+        return float(np.mean(diff / var))
 
     # ------------------------------------------------------------------ the basis spectra
     def _signals(self, delta_r: np.ndarray, r: int, n_grid: int):
