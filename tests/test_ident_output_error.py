@@ -176,15 +176,15 @@ def test_refinement_gradient_is_the_derivative_of_the_output_error(fnsi_chain):
 # ---------------------------------------------------------------------------- the answers
 def test_refinement_removes_the_motion_noise_bias_of_known_gaps(fnsi_chain):
     """Known clearances, 1 % noise: FNSI's stiffnesses carry the regressors' noise (seeds
-    0-7: up to 0.73 %); refined, within 0.26 % over the same seeds (bench/RESULTS.md), the
-    misfit at the noise (1.11-1.13 noise variances; the out-of-band background's noise is
+    0-7: up to 0.73 %); refined, within 0.22 % over the same seeds (bench/RESULTS.md), the
+    misfit at the noise (1.02-1.07 noise variances; the measured lines above the band are
     the rest)."""
     data, basis, model = fnsi_chain
     fit = refine_output_error(data, basis, model)
     coef = np.array([c.value for c in summarize_coefficients(
         nonlinear_coefficients(fit.model, data, fit.basis, driving_point="X3"))])
     assert np.all(np.abs(coef / CONTACT - 1) < 0.005), coef / CONTACT - 1
-    assert fit.converged and 1.0 < fit.misfit < 1.3
+    assert fit.converged and 0.9 < fit.misfit < 1.3
     assert fit.misfit_start > 10 * fit.misfit        # FNSI's own steady state: 35-580
     assert fit.model.order == model.order
 
@@ -194,7 +194,7 @@ def test_clearances_auto_meet_the_targets_through_the_pipeline(seed):
     """Issue 15's targets on the chain whose gaps are a third of the relative motion's RMS,
     1 % noise, 16 periods (where the search alone gave gaps -2.2 / -2.4 % and +2.5 / +4.1 %,
     stiffnesses +1.7 / +2.4 % and -1.6 / -2.7 % for these seeds): every clearance within
-    2 %, every stiffness within 0.5 %. Refined: within 0.7 % and 0.18 % over 8 seeds."""
+    2 %, every stiffness within 0.5 %. Refined: within 0.36 % and 0.20 % over 8 seeds."""
     src, _ = _chain(seed=seed)
     res = fnsi_lab.identify(src, _config(gaps="auto"), order=6)
     coef, clear, j = _errors(res)
@@ -203,7 +203,7 @@ def test_clearances_auto_meet_the_targets_through_the_pipeline(seed):
     oe = j["output_error"]
     assert oe["applied"] and oe["converged"] and oe["misfit"] < 1.3
     assert [p["parameter"] for p in oe["parameters"]] == ["g_neg", "g_pos"]
-    # the standard deviations are the refinement's (0.13 %), not the search's curvature
+    # the standard deviations are the refinement's (0.14 %), not the search's curvature
     std = np.array(j["nonlinearities"][0]["clearance_std"]) / GAPS
     assert np.all((std > 5e-4) & (std < 5e-3))
     assert j["timings_s"]["output_error"] > 0
