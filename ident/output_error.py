@@ -43,6 +43,7 @@ from fnsi_lab.ident.modal import ModalModel, pole_kernel
 from fnsi_lab.ident.periodic import FrequencyData, smooth_lines
 
 __all__ = ["OutputErrorFit", "refine_output_error", "RefinedParameter", "refinement_case",
+           "omitted_mode_evidence",
            "MIN_MOTION_NOISE_SHARE", "MAX_UNEXPLAINED", "DOMINANT_MOTION_NOISE_SHARE",
            "MAX_MISFIT"]
 
@@ -164,6 +165,14 @@ class OutputErrorFit:
         Where predicted: the mean ``|measured - predicted|^2`` over the noise variance there
         (about 1 when the model holds the structure under the band).
     timings_s : dict
+    weighted_residual : complex ndarray, shape (n_lines, n_outputs), or None
+        The refined model's residual on the data's lines, weighted as in ``V``.
+    excitation : complex ndarray, shape (n_lines, n_inputs + n_basis), or None
+        The inputs and the refined steady state's basis functions on the data's lines (what
+        each mode's input vector multiplies); with ``weighted_residual`` it is what
+        :func:`omitted_mode_evidence` reads.
+    residual_weights : ndarray, shape (n_lines, n_outputs), or None
+        The weights of ``weighted_residual`` (``1 / sigma`` of each line and output).
     """
 
     model: StateSpaceModel
@@ -181,6 +190,9 @@ class OutputErrorFit:
     below_band: str = "measured"
     below_band_misfit: float | None = None
     timings_s: dict = field(default_factory=dict)
+    weighted_residual: np.ndarray | None = field(default=None, repr=False)
+    excitation: np.ndarray | None = field(default=None, repr=False)
+    residual_weights: np.ndarray | None = field(default=None, repr=False)
 
     def refined_frequency(self, start_hz: float) -> float | None:
         """The refined natural frequency of the start model's pole at ``start_hz`` (None if
@@ -715,7 +727,52 @@ def _fit(data: FrequencyData, basis: Sequence[Nonlinearity], model: StateSpaceMo
                           below_band_misfit=prob.balance.below_band_misfit(point["state"]),
                           below_band=("predicted" if prob.balance.low_lines is not None
                                       else "measured"),
-                          timings_s=timings)
+                          timings_s=timings, weighted_residual=point["res"],
+                          excitation=point["E"], residual_weights=np.asarray(prob.W))
+
+
+def omitted_mode_evidence(fit: OutputErrorFit, pole: complex, input_vector: np.ndarray,
+                          z: np.ndarray) -> float:
+    """How much of a refined fit's residual a mode the fit left out would explain.
+
+    The score test of the omitted mode: its pole and input vector held where they were
+    (``pole``, discrete time; ``input_vector``, shape (n_inputs + n_basis,), any scale), its
+    output vector fitted to ``fit.weighted_residual`` by least squares, row by row.
+
+    Parameters
+    ----------
+    fit : OutputErrorFit
+        A fit without the mode.
+    pole : complex
+        The mode's discrete-time pole ``mu`` (``Im > 0``).
+    input_vector : complex ndarray, shape (n_inputs + n_basis,)
+        ``beta`` of the mode in a model that held it.
+    z : complex ndarray, shape (n_lines,)
+        The data's lines, ``exp(j 2 pi k / N)`` (``FrequencyData.z``).
+
+    Returns
+    -------
+    float
+        The decrease of ``V`` (noise variances) the mode's output vector alone would bring.
+        Pure noise gives about the number of outputs; the mode's own parameters number
+        ``2 + 2 (n_inputs + n_basis) + 2 n_outputs``, which is what a mode must beat to
+        be worth keeping (the Akaike criterion of a complex Gaussian residual).
+    """
+    if fit.weighted_residual is None or fit.excitation is None \
+            or fit.residual_weights is None:
+        raise IdentError("the fit holds no residual to test a mode against")
+    xi = fit.excitation @ np.asarray(input_vector, complex)
+    xp, xm = xi / (z - pole), np.conj(xi) / (z - np.conj(pole))
+    phi = np.stack([xp + xm, 1j * (xp - xm)], axis=1)                # (F, 2): Re, Im gamma
+    explained = 0.0
+    for o in range(fit.weighted_residual.shape[1]):
+        a = phi * fit.residual_weights[:, o:o + 1]
+        a_real = np.concatenate([a.real, a.imag])
+        r = fit.weighted_residual[:, o]
+        r_real = np.concatenate([r.real, r.imag])
+        coef, *_ = np.linalg.lstsq(a_real, r_real, rcond=None)
+        explained += float(r_real @ r_real - np.sum((r_real - a_real @ coef) ** 2))
+    return explained
 
 
 def _state_space(modal: ModalModel, like: StateSpaceModel) -> StateSpaceModel:
