@@ -761,11 +761,14 @@ def omitted_mode_evidence(fit: OutputErrorFit, pole: complex, input_vector: np.n
     if fit.weighted_residual is None or fit.excitation is None \
             or fit.residual_weights is None:
         raise IdentError("the fit holds no residual to test a mode against")
-    xi = fit.excitation @ np.asarray(input_vector, complex)
-    xp, xm = xi / (z - pole), np.conj(xi) / (z - np.conj(pole))
-    phi = np.stack([xp + xm, 1j * (xp - xm)], axis=1)                # (F, 2): Re, Im gamma
+    n_outputs, m_e = fit.weighted_residual.shape[1], fit.excitation.shape[1]
+    mode = ModalModel(poles=np.array([pole], complex), real_poles=np.zeros(0),
+                      b_pair=np.asarray(input_vector, complex).reshape(1, m_e),
+                      b_real=np.zeros((0, m_e)), c_pair=np.zeros((n_outputs, 1), complex),
+                      c_real=np.zeros((n_outputs, 0)), d=np.zeros((n_outputs, m_e)))
+    phi = mode.regressor(z, fit.excitation, d_free=False)          # (F, 2): Re, Im gamma
     explained = 0.0
-    for o in range(fit.weighted_residual.shape[1]):
+    for o in range(n_outputs):
         a = phi * fit.residual_weights[:, o:o + 1]
         a_real = np.concatenate([a.real, a.imag])
         r = fit.weighted_residual[:, o]

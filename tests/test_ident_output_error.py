@@ -325,9 +325,10 @@ def test_omitted_mode_evidence_finds_a_mode_left_in_the_residual(fnsi_chain):
                                  np.ones(n_excitation), data.z) < threshold
     m = ModalModel.from_matrices(fit.model.a_d, fit.model.b_d, fit.model.c_d, fit.model.d_d)
     r = int(np.argmin(np.abs(m.poles)))            # any mode: the first one read
-    xi = fit.excitation @ m.b_pair[r]
-    mode = (np.outer(xi / (data.z - m.poles[r]), m.c_pair[:, r])
-            + np.outer(np.conj(xi) / (data.z - np.conj(m.poles[r])), np.conj(m.c_pair[:, r])))
+    # the pair's part of G(z) E: gamma beta^T E / (z - mu) + its conjugate pole's term
+    plus = fit.excitation @ m.b_pair[r] / (data.z - m.poles[r])
+    minus = fit.excitation @ np.conj(m.b_pair[r]) / (data.z - np.conj(m.poles[r]))
+    mode = np.outer(plus, m.c_pair[:, r]) + np.outer(minus, np.conj(m.c_pair[:, r]))
     energy = float(np.sum(np.abs(fit.residual_weights * mode) ** 2))
     missing = replace(fit, weighted_residual=fit.weighted_residual
                       + fit.residual_weights * mode)
