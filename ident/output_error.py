@@ -489,13 +489,22 @@ def _stack(x: np.ndarray) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------- the fit
+def _scaled_blocks(A, N, M):
+    """The block-arrow normal equations scaled to a unit diagonal (Marquardt scaling):
+    ``(ds, dn, As, Ns, Ms)``, ``ds`` (n_s,) and ``dn`` (n_free, n_own) the scales."""
+    ds = np.sqrt(np.maximum(np.diag(A), 1e-300))
+    dn = np.sqrt(np.maximum(np.einsum("onn->on", N), 1e-300))
+    As = A / np.outer(ds, ds)
+    Ns = N / (dn[:, :, None] * dn[:, None, :])
+    Ms = M / (dn[:, :, None] * ds[None, None, :])
+    return ds, dn, As, Ns, Ms
+
+
 def _damped_step(A, g_s, N, M, g_o, lam: float):
     """Levenberg-Marquardt step of the block-arrow normal equations (Marquardt scaling)."""
-    ds = np.sqrt(np.maximum(np.diag(A), 1e-300))
-    dn = np.sqrt(np.maximum(np.einsum("onn->on", N), 1e-300))          # (n_free, n_own)
-    As = A / np.outer(ds, ds) + lam * np.eye(ds.size)
-    Ns = N / (dn[:, :, None] * dn[:, None, :]) + lam * np.eye(N.shape[1])[None]
-    Ms = M / (dn[:, :, None] * ds[None, None, :])
+    ds, dn, As, Ns, Ms = _scaled_blocks(A, N, M)
+    As = As + lam * np.eye(ds.size)
+    Ns = Ns + lam * np.eye(N.shape[1])[None]
     gs, go = g_s / ds, g_o / dn
     if N.shape[0]:
         NiM = np.linalg.solve(Ns, Ms)                                    # (n_free, n_own, n_s)
@@ -522,12 +531,8 @@ def _solve_sym(S: np.ndarray, rhs: np.ndarray) -> np.ndarray:
 
 def _shared_covariance(A, N, M) -> np.ndarray:
     """``(J^T J)^-1`` restricted to the shared parameters (the Schur complement's inverse)."""
-    ds = np.sqrt(np.maximum(np.diag(A), 1e-300))
-    As = A / np.outer(ds, ds)
+    ds, _, As, Ns, Ms = _scaled_blocks(A, N, M)
     if N.shape[0]:
-        dn = np.sqrt(np.maximum(np.einsum("onn->on", N), 1e-300))
-        Ns = N / (dn[:, :, None] * dn[:, None, :])
-        Ms = M / (dn[:, :, None] * ds[None, None, :])
         As = As - np.einsum("ons,ont->st", Ms, np.linalg.solve(Ns, Ms))
     return np.linalg.pinv(As, rcond=1e-13, hermitian=True) / np.outer(ds, ds)
 
