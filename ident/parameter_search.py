@@ -919,18 +919,19 @@ def _search(data: FrequencyData, basis: Sequence[Nonlinearity], *, order: int, d
             refusal.restarted = restarted_at_all   # estimate_basis_parameters may retry
             raise
         estimates.append(est)
-    noise_notes = [f"nonlinearity {e.unknown.name!r}: {e.unknown.parameter} = {e.value:.4g} was "
-             f"estimated from a relative motion with noise {e.motion_noise_std:.3g} "
-             f"({100 * e.motion_noise_std / e.value:.2g} % of it) per sample; "
-             + ("its first-order effect was removed; what remains grows with that ratio and "
-                "is not in the standard deviation (3-DOF chain, 4-8 noise seeds: within 2-4 % of "
-                "the gap at 4-7 %, up to +15 % at 8-10 %, up to +24 % at 12-15 %; docs/ident.md, "
-                "'Unknown basis parameters'): average more periods for a tighter gap"
-                if e.noise_corrected else
-                "noise in the motion biases gaps upwards by about as much (docs/ident.md, "
-                "'Unknown basis parameters'): average more periods")
-             for e in estimates
-             if e.unknown.reach and e.motion_noise_std and e.motion_noise_std > 5e-3 * e.value]
+    noise_notes = [
+        f"nonlinearity {e.unknown.name!r}: {e.unknown.parameter} = {e.value:.4g} was "
+        f"estimated from a relative motion with noise {e.motion_noise_std:.3g} "
+        f"({100 * e.motion_noise_std / e.value:.2g} % of it) per sample; "
+        + ("its first-order effect was removed; what remains grows with that ratio and "
+           "is not in the standard deviation (3-DOF chain, 4-8 noise seeds: within 2-4 % of "
+           "the gap at 4-7 %, up to +15 % at 8-10 %, up to +24 % at 12-15 %; docs/ident.md, "
+           "'Unknown basis parameters'): average more periods for a tighter gap"
+           if e.noise_corrected else
+           "noise in the motion biases gaps upwards by about as much (docs/ident.md, "
+           "'Unknown basis parameters'): average more periods")
+        for e in estimates
+        if e.unknown.reach and e.motion_noise_std and e.motion_noise_std > 5e-3 * e.value]
     if any(e.unknown.reach for e in estimates) and not correct:
         noise_notes.extend(_uncorrected_motion_noise(data, integrated))
     notes = list(noise_notes)
