@@ -128,9 +128,9 @@ def _print_parameter_summary(res: dict, out=None) -> None:
            else "")
     print(f"basis parameters from the data (order {search['order']}, "
           f"{search['n_evaluations']} fits, {search['timings_s']['total']:.2f} s{fit}):", file=out)
-    refined = {(p["name"], p["parameter"]): p
-                for p in (res.get("output_error") or {}).get("parameters") or []
-                if (res.get("output_error") or {}).get("applied")}
+    oe = res.get("output_error") or {}
+    refined = ({(p["name"], p["parameter"]): p for p in oe.get("parameters") or []}
+               if oe.get("applied") else {})
     for nl in res["nonlinearities"]:
         for par, ob in (nl.get("objective") or {}).items():
             side = 0 if par in ("g_neg", "clearance") else 1
@@ -165,10 +165,15 @@ def _print_refinement(res: dict, out=None) -> None:
         print(f"output-error refinement: not run ({oe.get('reason')})", file=out)
         return
     dropped = oe.get("dropped_modes_hz") or []
+    left_out = oe.get("left_out") or []
     print(f"output-error refinement (docs/ident.md): misfit {oe['misfit_start']:.3g} -> "
           f"{oe['misfit']:.3g} noise variances in {oe['iterations']} steps"
           + (f"; modes it dropped: {', '.join(f'{f:.4g} Hz' for f in dropped)}" if dropped
-             else "") + "; the answer:", file=out)
+             else "")
+          + ("; split modes left out: " + ", ".join(
+              f"{m['frequency_hz']:.4g} Hz (would explain {m['evidence']:.2g} of "
+              f"{m['threshold']} noise variances)" for m in left_out) if left_out else "")
+          + "; the answer:", file=out)
     for c in res["coefficients"]:
         err = (f"  error {c['value_error_percent']:+.3f} %"
                if c.get("value_error_percent") is not None else "")

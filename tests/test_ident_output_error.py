@@ -10,6 +10,7 @@ chain with a relative two-sided stop, sampled band-limited; 1 % white noise on e
 
 from __future__ import annotations
 
+import io
 from dataclasses import replace
 
 import numpy as np
@@ -18,6 +19,7 @@ import pytest
 import fnsi_lab
 from fnsi_lab.ident import fnsi
 from fnsi_lab.ident.basis import ParameterSpace
+from fnsi_lab.ident.cli import _print_refinement
 from fnsi_lab.ident.coefficients import nonlinear_coefficients, summarize_coefficients
 from fnsi_lab.ident.config import load_ident_config, packaged_config, parse_ident_config
 from fnsi_lab.ident.errors import IdentConfigError, IdentError
@@ -438,3 +440,6 @@ def test_a_split_mode_is_left_out_when_its_score_test_says_so():
     coef = np.array([c["value"] for c in j["coefficients"]]) / [4e4, 3e4] - 1
     clear = np.array(j["nonlinearities"][0]["clearances"]) / [2e-4, 3e-4] - 1
     assert np.all(np.abs(clear) < 0.02) and np.all(np.abs(coef) < 0.005), (clear, coef)
+    summary = io.StringIO()
+    _print_refinement(j, out=summary)                # what `fnsi-lab ident` prints
+    assert "split modes left out: 16." in summary.getvalue()
