@@ -299,7 +299,7 @@ def evaluate(case: Case, snr_db: float | None, *, steady_periods: int, transient
     # the answer's declared values (what outside checks read; after the output-error
     # refinement when it ran), not the robust pipeline's own FNSI models
     err = max(abs(c["value_error_percent"]) for c in ident.coefficients)
-    oe = ident.to_json().get("output_error") or {}
+    refined = ident.output_error                   # the OutputErrorFit kept, or None
     f_true, z_true = case.true_modes()
     inb = (f_true >= case.band_hz[0]) & (f_true <= case.band_hz[1])
     md = res.modal_dominancy
@@ -315,7 +315,8 @@ def evaluate(case: Case, snr_db: float | None, *, steady_periods: int, transient
             "modes_true": int(inb.sum()), "modes_found": int(found), "false_modes": int(false),
             "confidence": res.confidence["level"], "seconds": elapsed, "note": case.note,
             "clearances": stops[0] if stops else None,
-            "refined": bool(oe.get("applied")), "misfit": oe.get("misfit")}
+            "refined": refined is not None,
+            "misfit": None if refined is None else refined.misfit}
 
 
 def table(rows: list[dict]) -> list[str]:
