@@ -43,6 +43,8 @@ def _acquire_started(args: argparse.Namespace, restart_gc: bool) -> int:
     from fnsi_lab.outputs import check_output_path
 
     config = load_experiment(args.config)
+    if getattr(args, "level", None) is not None:
+        config = _at_level(config, float(args.level))
     if config.excitation is not None and config.excitation.levels:
         if restart_gc:  # several recordings: the collector on from the start
             gc.freeze()
@@ -51,7 +53,7 @@ def _acquire_started(args: argparse.Namespace, restart_gc: bool) -> int:
     output = str(check_output_path(config.output if args.out is None else args.out,
                                    force=args.force))
     total = None
-    if config.excitation is not None and config.source.kind in ("simulated", "smallsat"):
+    if config.excitation is not None and config.source.kind in ("simulated", "smallsat", "aircraft"):
         ex = config.excitation
         total = ex.samples_per_period * ex.periods * ex.realizations
     progress = Progress(total or 1, "acquire", enabled=not args.quiet and total is not None)
@@ -76,6 +78,21 @@ def _acquire_started(args: argparse.Namespace, restart_gc: bool) -> int:
         from fnsi_lab.daq.recording.info import format_info, recording_info
         print(format_info(recording_info(output)))
     return 0
+
+
+def _at_level(config: Any, level: float) -> Any:
+    """``--level``: one run at ``level`` RMS (a level sweep's ``levels`` dropped), recorded
+    to ``<name>-rms<level>.mcap`` like the sweep's files unless ``--out`` is given."""
+    from dataclasses import replace
+
+    if config.excitation is None:
+        raise config.error("excitation", "--level needs an experiment with an excitation",
+                           fix="drop --level, or use a config with an 'excitation:' section")
+    if not level > 0:
+        raise config.error("excitation.rms", f"--level {level:g}: must be an RMS > 0",
+                           fix="e.g. --level 98")
+    excitation = replace(config.excitation, rms=level, levels=())
+    return replace(config, excitation=excitation, output=f"{config.name}-rms{level:g}.mcap")
 
 
 def _acquire_levels(args: argparse.Namespace, config: Any) -> int:
@@ -148,11 +165,15 @@ def register(sub: argparse._SubParsersAction) -> None:
                "  fnsi-lab acquire --out smallsat.mcap\n"
                "  fnsi-lab acquire --config my_rig.yaml --realtime   # pace as hardware would\n"
                "  fnsi-lab acquire --config lumped.yaml              # packaged small model\n"
-               "  fnsi-lab acquire --config sweep.yaml --out campaign/  # excitation.levels: one file per level\n")
+               "  fnsi-lab acquire --config sweep.yaml --out campaign/  # excitation.levels: one file per level\n"
+               "  fnsi-lab acquire --config aircraft --level 98      # aircraft-like GVT at 98 N RMS\n")
     p.add_argument("--config", metavar="FILE.yaml", help="experiment YAML (default: packaged smallsat.yaml)")
     p.add_argument("--out", metavar="FILE.mcap", help="output file (default: the config's 'output')")
     p.add_argument("--realtime", action="store_true",
                    help="pace a simulated source at wall-clock speed, as hardware would deliver it")
+    p.add_argument("--level", type=float, metavar="RMS",
+                   help="one run at this excitation RMS (force unit, e.g. N) instead of the "
+                        "config's rms or levels; default output <name>-rms<RMS>.mcap")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--no-info", action="store_true", help="do not print the recording summary afterwards")
     p.add_argument("--force", action="store_true",

@@ -321,13 +321,16 @@ def load_experiment(path: str | Path | None = None) -> ExperimentConfig:
     ----------
     path : str or Path or None
         YAML file. ``None`` gives :data:`DEFAULT_EXPERIMENT`; a bare name of a packaged
-        experiment (``lumped3.yaml``) also works.
+        experiment (``lumped3.yaml``, or without the suffix: ``aircraft``) also works.
     """
     if path is None:
         path = DEFAULT_EXPERIMENT
     p = Path(path)
-    if not p.exists() and p.parent == Path(".") and packaged_experiment(p.name) is not None:
-        p = packaged_experiment(p.name)  # type: ignore[assignment]
+    if not p.exists() and p.parent == Path("."):
+        for name in (p.name, p.name + ".yaml"):   # `--config aircraft` finds aircraft.yaml
+            if packaged_experiment(name) is not None:
+                p = packaged_experiment(name)  # type: ignore[assignment]
+                break
     data, text = load_yaml(p, missing_fix="check the path, or omit --config to use the default")
     return parse_experiment(data, file=str(path), text=text)
 

@@ -20,6 +20,7 @@ if TYPE_CHECKING:  # pragma: no cover
 SOURCES: dict[str, tuple[str, str]] = {
     "simulated": ("fnsi_lab.daq.sim.source", "SimulatedSource"),
     "smallsat": ("fnsi_lab.daq.sim.source", "SimulatedSource"),
+    "aircraft": ("fnsi_lab.daq.sim.aircraft_source", "AircraftSource"),
     "can": ("fnsi_lab.daq.sources.can_source", "CanSource"),
     "serial": ("fnsi_lab.daq.sources.serial_source", "SerialSource"),
     "replay": ("fnsi_lab.replay.source", "ReplaySource"),
