@@ -6,7 +6,7 @@ import argparse
 import sys
 from typing import Any
 
-from fnsi_lab.progress import Progress
+from fnsi_lab.progress import Progress, announce_simulator_compile
 
 
 def _acquire(args: argparse.Namespace) -> int:
@@ -68,6 +68,7 @@ def _acquire_started(args: argparse.Namespace, restart_gc: bool) -> int:
         what = f"{config.name} ({config.source.kind})"
         pace = "at wall-clock speed" if args.realtime else "as fast as possible"
         print(f"acquiring {what} {pace} -> {output}", file=sys.stderr)
+    announce_simulator_compile(config.source.kind, enabled=not args.quiet)
     report = record_experiment(config, output, realtime=args.realtime,
                                on_block=on_block, stop=None)
     print(report.summary())

@@ -65,3 +65,30 @@ class Progress:
         for item in items:
             yield item
             self.update()
+
+
+#: Source kinds whose data come from the numba-compiled simulator (daq.sim).
+SIMULATED_KINDS = ("simulated", "smallsat")
+
+
+def announce_simulator_compile(source_kind: str, *, enabled: bool = True,
+                               stream: IO[str] | None = None) -> None:
+    """Print ``compiling the simulator (first run only)...`` when it is about to be compiled.
+
+    For the command line: registers a notice with :func:`daq.sim.integrate.on_first_compile`
+    that the kernel loader calls, once, when numba's on-disk cache does not hold the kernel
+    yet (a fresh environment: ~3 s before the first block instead of ~0.4 s). Nothing for
+    other sources (the simulator is then not imported).
+    """
+    if not enabled or source_kind not in SIMULATED_KINDS:
+        return
+    from fnsi_lab.daq.sim.integrate import COMPILE_SECONDS, on_first_compile
+
+    out = stream or sys.stderr
+
+    def notice() -> None:
+        out.write(f"compiling the simulator (first run only, ~{COMPILE_SECONDS:.0f} s; "
+                  "cached for later runs)...\n")
+        out.flush()
+
+    on_first_compile(notice)

@@ -18,6 +18,7 @@ from typing import Any, Callable
 
 from fnsi_lab.errors import ConfigError
 from fnsi_lab.blas import limit_blas_threads
+from fnsi_lab.progress import announce_simulator_compile
 
 DEFAULT_ORDERS = "2:40"
 
@@ -148,6 +149,7 @@ class LiveRun:
         self._stop = threading.Event()
         self._printer: threading.Thread | None = None
         self._tty = sys.stderr.isatty()
+        self._last_line = ""  # a log (not a terminal) gets a status line only when it changed
 
     # called in the assembler thread
     def on_block(self, block: Any, acq_t0_s: float) -> None:
@@ -223,7 +225,10 @@ class LiveRun:
         line = self.service.status.line(self.file_size())
         if self._tty and not final:
             sys.stderr.write("\r" + line + "\x1b[K")
+        elif line == self._last_line and not self._tty:
+            return  # nothing new (e.g. while the simulator compiles): no repeated line
         else:
+            self._last_line = line
             sys.stderr.write(("\r" if self._tty else "") + line + "\n")
         sys.stderr.flush()
 
@@ -393,6 +398,7 @@ def _cmd_live(args: argparse.Namespace) -> int:
                                force=args.force)
     html_path = _report_path(args, output)
     pace = None if args.fast else args.speed
+    announce_simulator_compile(config.source.kind, enabled=not args.quiet)
     source = make_source(config, pace=pace) if pace is not None else make_source(config)
     metadata = recording_metadata(config, source)
     identify, what = make_identifier(args, metadata, source.channels)

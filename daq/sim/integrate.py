@@ -39,9 +39,10 @@ internal step ``h``; kinks at contact onsets) and from the padding (decay to < 1
 
 from __future__ import annotations
 
+import math
 import threading
 from dataclasses import dataclass, field
-from typing import Literal, Sequence
+from typing import Callable, Literal, Sequence
 
 import warnings
 
@@ -126,13 +127,13 @@ def _eval_forces(y, s, el, code, coef, gap, expo, signed, vel, v0, out):
             h = x - gap[b] if x > gap[b] else 0.0
         elif c == BASIS_POLY:
             if signed[b]:
-                h = np.abs(x) ** (expo[b] - 1.0) * x
+                h = abs(x) ** (expo[b] - 1.0) * x
             else:
                 h = x ** expo[b]
         elif c == BASIS_COULOMB:
-            h = np.tanh(x / v0[b])
+            h = math.tanh(x / v0[b])
         else:  # quadratic damping
-            h = np.abs(x) * x
+            h = abs(x) * x
         out[a] += coef[b] * h
 
 
@@ -152,14 +153,14 @@ def _eval_slopes(y, s, el, code, coef, gap, expo, signed, vel, v0, out):
         elif c == BASIS_POLY:
             p = expo[b]
             if signed[b]:
-                d = p * np.abs(x) ** (p - 1.0)
+                d = p * abs(x) ** (p - 1.0)
             else:
                 d = p * x ** (p - 1.0)
         elif c == BASIS_COULOMB:
-            t = np.tanh(x / v0[b])
+            t = math.tanh(x / v0[b])
             d = (1.0 - t * t) / v0[b]
         else:
-            d = 2.0 * np.abs(x)
+            d = 2.0 * abs(x)
         out[a] += coef[b] * d
 
 
@@ -194,6 +195,8 @@ def _kernel(edr, edi, g0r, g0i, g1r, g1i, bur, bui, u, bfr, bfi, cr, ci, yoff, r
     slope = np.zeros(s)
     delta = np.zeros(s)
     act = np.zeros(s, dtype=np.int64)
+    jac = np.zeros((s, s))  # Newton matrix of the active elements (first n_act rows/cols)
+    rv = np.zeros(s)
     iters_max = 0
     n_fail = 0
     worst = 0.0  # largest relative force residual |F(y) - f| / |F| of unconverged steps
@@ -241,9 +244,9 @@ def _kernel(edr, edi, g0r, g0i, g1r, g1i, bur, bui, u, bfr, bfi, cr, ci, yoff, r
         if (k & 63) == 0:
             # flush decayed modal states to zero: subnormal numbers are ~100x slower
             for m in range(nm):
-                if np.abs(zr[m]) < 1e-200:
+                if abs(zr[m]) < 1e-200:
                     zr[m] = 0.0
-                if np.abs(zi[m]) < 1e-200:
+                if abs(zi[m]) < 1e-200:
                     zi[m] = 0.0
         ko = (k + 1) % n_off
         for r in range(n_r):
@@ -272,11 +275,11 @@ def _kernel(edr, edi, g0r, g0i, g1r, g1i, bur, bui, u, bfr, bfi, cr, ci, yoff, r
             diff = 0.0
             scale = 0.0
             for a in range(s):
-                d = np.abs(fn[a] - f[a])
+                d = abs(fn[a] - f[a])
                 if d > diff:
                     diff = d
-                if np.abs(fn[a]) > scale:
-                    scale = np.abs(fn[a])
+                if abs(fn[a]) > scale:
+                    scale = abs(fn[a])
             if diff <= tol * scale:
                 for a in range(s):
                     f[a] = fn[a]
@@ -293,13 +296,13 @@ def _kernel(edr, edi, g0r, g0i, g1r, g1i, bur, bui, u, bfr, bfi, cr, ci, yoff, r
                 _eval_slopes(y, s, el, code, coef, gap, expo, signed, vel, v0, slope)
                 settled = True
                 for a in range(s):
-                    d = np.abs(fn[a] - f[a])
+                    d = abs(fn[a] - f[a])
                     if d > tol * scale:
                         ra = erow[a]
-                        mag = np.abs(ypred[ra])
+                        mag = abs(ypred[ra])
                         for b in range(s):
-                            mag += np.abs(dmat[ra, b] * f[b])
-                        if d > tol * scale + _ROUNDOFF_ULPS * _EPS * np.abs(slope[a]) * mag:
+                            mag += abs(dmat[ra, b] * f[b])
+                        if d > tol * scale + _ROUNDOFF_ULPS * _EPS * abs(slope[a]) * mag:
                             settled = False
                             break
                 if settled:
@@ -340,8 +343,6 @@ def _kernel(edr, edi, g0r, g0i, g1r, g1i, bur, bui, u, bfr, bfi, cr, ci, yoff, r
                         rhs += slope[a] * dmat[erow[a], b] * delta[b]
                 delta[a] = rhs / (1.0 - slope[a] * dmat[erow[a], a])
             elif n_act > 1:
-                jac = np.zeros((n_act, n_act))
-                rv = np.zeros(n_act)
                 for i in range(n_act):
                     a = act[i]
                     rhs = delta[a]
@@ -351,9 +352,34 @@ def _kernel(edr, edi, g0r, g0i, g1r, g1i, bur, bui, u, bfr, bfi, cr, ci, yoff, r
                     rv[i] = rhs
                     for j in range(n_act):
                         jac[i, j] = (1.0 if i == j else 0.0) - slope[a] * dmat[erow[a], act[j]]
-                sol = np.linalg.solve(jac, rv)
+                # Gaussian elimination with partial pivoting on the n_act x n_act block, in
+                # place (what LAPACK's dgesv does; np.linalg.solve here cost ~3 s of numba
+                # compilation on the first run, for a block of a few elements)
+                for c in range(n_act):
+                    piv = c
+                    for i in range(c + 1, n_act):
+                        if abs(jac[i, c]) > abs(jac[piv, c]):
+                            piv = i
+                    if piv != c:
+                        for j in range(n_act):
+                            tmp = jac[c, j]
+                            jac[c, j] = jac[piv, j]
+                            jac[piv, j] = tmp
+                        tmp = rv[c]
+                        rv[c] = rv[piv]
+                        rv[piv] = tmp
+                    for i in range(c + 1, n_act):
+                        fac = jac[i, c] / jac[c, c]
+                        for j in range(c + 1, n_act):
+                            jac[i, j] -= fac * jac[c, j]
+                        rv[i] -= fac * rv[c]
+                for c in range(n_act - 1, -1, -1):
+                    acc = rv[c]
+                    for j in range(c + 1, n_act):
+                        acc -= jac[c, j] * rv[j]
+                    rv[c] = acc / jac[c, c]
                 for i in range(n_act):
-                    delta[act[i]] = sol[i]
+                    delta[act[i]] = rv[i]
             any_f = False
             for a in range(s):
                 f[a] += delta[a]
@@ -908,6 +934,36 @@ def lowpass_decimate_periodic(x_fine: np.ndarray, oversample: int, sample_rate_h
 # ---------------------------------------------------------------------------- start-up
 _LOADER: "threading.Thread | None" = None
 _LOADER_LOCK = threading.Lock()
+#: Called once, from the loader thread, when the kernel is not in numba's on-disk cache
+#: and is about to be compiled (the command line prints a line; see :func:`on_first_compile`).
+_COMPILE_NOTICE: "Callable[[], None] | None" = None
+#: Compilation of the three kernels from an empty cache, measured on the 2-core machine of
+#: bench/RESULTS.md (CPU seconds; the cached load takes ~0.4 s).
+COMPILE_SECONDS = 3.0
+
+
+def on_first_compile(notice: "Callable[[], None] | None") -> None:
+    """Register what to do when the simulator is about to be compiled (first run only).
+
+    The command line registers a line on stderr (``compiling the simulator (first run
+    only)...``) so that the ~3 s of the first acquisition in a fresh environment are not
+    silent; library callers are silent unless they register something. ``None`` removes it.
+    """
+    global _COMPILE_NOTICE
+    _COMPILE_NOTICE = notice
+
+
+def kernel_is_cached() -> bool:
+    """True when numba's on-disk cache holds the simulator kernel for this source file.
+
+    Reads the cache index (numba 0.5x-0.6x layout: ``__pycache__/integrate._kernel-*.nbi``,
+    emptied when the source changed). Returns True when the index cannot be read through
+    numba's internals (then nothing is announced rather than a false notice).
+    """
+    try:
+        return bool(_kernel._cache._cache_file._load_index())  # type: ignore[attr-defined]
+    except Exception:  # noqa: BLE001 - another numba layout: assume cached, stay silent
+        return True
 
 
 def load_kernel_async() -> "threading.Thread":
@@ -937,6 +993,9 @@ def _load_kernel() -> None:
     as every :func:`simulate` call, so the real runs find the kernel loaded."""
     from fnsi_lab.daq.sim.lumped import lumped_model
 
+    notice = _COMPILE_NOTICE
+    if notice is not None and not kernel_is_cached():
+        notice()
     try:
         simulate(lumped_model("cubic"), np.array([[1.0], [0.0], [-1.0], [0.0]]), 1000.0,
                  oversample=2, periodic=4, quantities=("displacement",))
