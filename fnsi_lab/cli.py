@@ -17,12 +17,14 @@ Start-up: a command imports only the module that registers it (:data:`COMMAND_IN
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import signal
 import sys
 from typing import Sequence
 
 from fnsi_lab import __version__
+from fnsi_lab.blas import restored_blas_threads
 from fnsi_lab.errors import FnsiLabError
 
 #: Modules that contribute subcommands, in help order.
@@ -130,8 +132,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     previous = None
     if threading_main():
         previous = signal.signal(signal.SIGTERM, _terminate)
+    blas = contextlib.nullcontext() if process else restored_blas_threads()
     try:
-        return int(handler(args) or 0)
+        with blas:  # in-process callers keep their BLAS thread count
+            return int(handler(args) or 0)
     except FnsiLabError as exc:
         print(f"fnsi-lab {args.command}: error: {exc}", file=sys.stderr)
         return int(getattr(exc, "exit_code", 2))

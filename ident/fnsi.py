@@ -238,6 +238,10 @@ _QR_CHEAP_FLOPS = 1e10
 #: one-period SmallSat realisations, 39 outputs): 60 dB noise gives 8e6; noise-free data 32
 #: (there the exact QR runs).
 _GRAM_MIN_FLOOR_RATIO = 1e6
+#: Input-lag directions kept by the subspace step's projection: singular value above this
+#: share of the largest (equilibrated columns), i.e. energy share above ``eps``
+#: (:func:`significant_input_basis`).
+INPUT_RANK_TOL = float(np.sqrt(np.finfo(float).eps))
 
 
 def _modal(a: np.ndarray):
@@ -692,16 +696,50 @@ def _psd_factor_rows(W: np.ndarray) -> np.ndarray:
     return rows
 
 
+def significant_input_basis(Me: np.ndarray, tol: float = INPUT_RANK_TOL) -> np.ndarray:
+    """Orthonormal basis of the numerically significant column space of ``Me``, shape (rows, r).
+
+    ``Me`` (real, ``(rows, i m_e)``) holds the block-Hankel extended input, one column per
+    input lag. Its columns are equilibrated (unit norm) and kept directions are the left
+    singular vectors whose singular value is above ``tol`` times the largest. Why: for a
+    band-limited multisine the lagged inputs are nearly collinear (singular values over 16
+    decades on a 5-DOF chain with i = 24), so the directions below ``sqrt(eps)`` are set by
+    round-off, and a projection on them differs with the BLAS's summation order (1 or 2
+    threads moved the information criterion by 1-4 % and flipped the selected order). The
+    kept span is accurate to about ``eps / tol`` radians whatever the BLAS does.
+    """
+    scale = np.linalg.norm(Me, axis=0)
+    scale[scale == 0] = 1.0
+    U, sv, _ = np.linalg.svd(Me / scale, full_matrices=False)
+    if sv.size == 0 or sv[0] == 0:
+        return U[:, :0]
+    return U[:, sv > tol * sv[0]]
+
+
+def _truncated_input_residual(MT: np.ndarray, n_in: int) -> np.ndarray:
+    """``L22`` (lower triangular, ``(n_y, n_y)``) of ``MT = [Me, My]`` with ``My`` projected
+    out of the significant input space only (:func:`significant_input_basis`)."""
+    Me, My = MT[:, :n_in], MT[:, n_in:]
+    U = significant_input_basis(Me)
+    R = My - U @ (U.T @ My)
+    R = R - U @ (U.T @ R)          # twice is enough (Kahan-Parlett reorthogonalisation)
+    r = np.linalg.qr(R, mode="r")
+    out = np.zeros((My.shape[1], My.shape[1]))
+    out[:r.shape[0]] = r
+    return out.T
+
+
 def _qr_residual_block(z: np.ndarray, E: np.ndarray, Y: np.ndarray, i: int,
                        extra_rows: np.ndarray | None = None) -> np.ndarray:
     """``L22`` of the QR ``[E_i; Y_i] = L Q^T`` of the block-Hankel data, shape (i p, i p).
 
     ``M^T = [Re; Im]`` of ``xi_k (x) [E_k; Y_k]`` (``2F`` rows, ``i (m_e + p)`` columns),
     plus ``extra_rows`` (real, already in that column order: a factor of the lag-sum Gram of
-    :func:`fold_repeated_lines`' small components), built in Fortran order and factored in
-    place by LAPACK ``dgeqrf`` (``R`` only).
+    :func:`fold_repeated_lines`' small components). The input columns are not factored
+    with the outputs: the outputs are projected out of the input's significant lag space
+    (:func:`significant_input_basis`), then factored by a QR (``R`` only), so that the
+    round-off of the nearly collinear input lags cannot reach ``L22``.
     """
-    from scipy.linalg import lapack
     m_e, p = E.shape[1], Y.shape[1]
     F, n = z.size, i * (m_e + p)
     n_extra = 0 if extra_rows is None else extra_rows.shape[0]
@@ -714,14 +752,7 @@ def _qr_residual_block(z: np.ndarray, E: np.ndarray, Y: np.ndarray, i: int,
             MT[F:2 * F, c0:c0 + w] = V.imag
     if n_extra:
         MT[2 * F:] = extra_rows
-    lwork = int(lapack.dgeqrf_lwork(MT.shape[0], n)[0])
-    qr, _, _, info = lapack.dgeqrf(MT, lwork=max(lwork, 1), overwrite_a=1)
-    if info != 0:
-        raise IdentError(f"QR of the block-Hankel data failed (LAPACK dgeqrf info {info})")
-    k = min(MT.shape[0], n)
-    R = np.zeros((n, n))
-    R[:k] = np.triu(qr[:k])  # fewer rows than columns (after folding): rank-deficient
-    return R[i * m_e:, i * m_e:].T
+    return _truncated_input_residual(MT, i * m_e)
 
 
 def _hankel_residual_gram(data_z, lines, E, Y, i: int) -> np.ndarray:
@@ -761,7 +792,7 @@ def _projected_residual_gram(z, E, Y, lines, i: int, check_order: int) -> np.nda
     The Gram form's Schur complement divides by the input block ``E_i E_i^T``, whose
     condition number grows without bound when the inputs are band-limited (the SmallSat's
     force: 6e15 with the band-limited lines); here the projection on the inputs uses the
-    explicit orthonormal ``Q_E`` of ``E_i^T`` (Householder, ``O(F (i m_e)^2)``) and ``C``
+    orthonormal ``Q_E`` of the significant part of ``E_i^T`` (:func:`significant_input_basis`, ``O(F (i m_e)^2)``) and ``C``
     costs ``O(F i^2 m_e p)``, while ``Y_i Y_i^T`` comes from lag sums (``O(F p^2 i)``),
     against the full QR's ``O(F i^2 (m_e + p)^2)``. The one subtraction leaves an absolute
     round-off of about ``eps trace(Y_i Y_i^T)`` on the eigenvalues, so the result is kept
@@ -777,8 +808,8 @@ def _projected_residual_gram(z, E, Y, lines, i: int, check_order: int) -> np.nda
     Gyy = G[d].transpose(0, 2, 1, 3).reshape(i * p, i * p)
     xi = z[None, :] ** r[:, None]                                    # (i, F)
     Ei = (xi[:, None, :] * E.T[None]).reshape(i * m_e, F)
-    Q = np.linalg.qr(np.hstack([Ei.real, Ei.imag]).T)[0]              # (2F, i m_e)
-    C = np.zeros((i * m_e, i * p))
+    Q = significant_input_basis(np.hstack([Ei.real, Ei.imag]).T)     # (2F, r)
+    C = np.zeros((Q.shape[1], i * p))
     for a in range(0, F, _CHUNK):                                     # Y_i in line chunks
         b = min(a + _CHUNK, F)
         Yi = (xi[:, None, a:b] * Y[a:b].T[None]).reshape(i * p, b - a)

@@ -47,6 +47,9 @@ __all__ = ["OutputErrorFit", "refine_output_error", "RefinedParameter", "refinem
            "MIN_MOTION_NOISE_SHARE", "MAX_UNEXPLAINED", "DOMINANT_MOTION_NOISE_SHARE",
            "MAX_MISFIT"]
 
+#: Relative GMRES tolerance of the motion's sensitivities in the Jacobian (a Gauss-Newton
+#: step needs no more; the gradient is then exact to about this share).
+SENSITIVITY_TOLERANCE = 1e-3
 #: ``refine: auto`` refines when the measured motion's noise, carried through FNSI's model,
 #: adds at least this fraction of the output noise to the expected squared residual: then
 #: the regressors' noise is a material part of what FNSI fits. 3-DOF chain, 1 % noise:
@@ -443,7 +446,7 @@ class _Problem:
         Lam = bal.L_out[:, lay.loop_rows]                                # (n_el, nl)
         v = np.einsum("el,kln,k->ken", Lam, direct_loop, np.tile(bal.to_displacement, self.R))
         v = v.reshape(self.R, self.F0, bal.n_el, -1)
-        x = bal.solve_linear(state, v, 1e-3)
+        x = bal.solve_linear(state, v, SENSITIVITY_TOLERANCE)
         point["motion_sensitivity"] = x                  # (R, F0, n_el, n_s)
         # the basis spectra's response through the motion on the data's lines (the direct
         # part of a basis parameter is already in _direct)

@@ -142,10 +142,15 @@ def test_balance_linearisation_is_the_derivative(fnsi_chain):
     assert np.linalg.norm(back - x) < 1e-7 * np.linalg.norm(x)
 
 
-def test_refinement_gradient_is_the_derivative_of_the_output_error(fnsi_chain):
+def test_refinement_gradient_is_the_derivative_of_the_output_error(fnsi_chain, monkeypatch):
     """``J^T r`` of the normal equations against central differences of ``V``, for a pole,
     an input row, a row the stop reads, a free row's own parameter and both clearances. The
-    sensitivities pass through the linearised balance (GMRES to 1e-4): agreement to 1e-3."""
+    sensitivities pass through the linearised balance, here solved to 1e-9 (the refinement
+    itself stops at 1e-3); the cost's own balance is solved to its Newton tolerance, so a
+    component is compared to 1e-3 of itself or of the gradient's norm (a component near
+    zero, e.g. a pole already near its optimum, is then not judged by its own size)."""
+    from fnsi_lab.ident import output_error
+    monkeypatch.setattr(output_error, "SENSITIVITY_TOLERANCE", 1e-9)
     data, basis, model = fnsi_chain
     basis = tuple(nl.with_parameters({"g_neg": 0.98 * GAPS[0], "g_pos": 1.02 * GAPS[1]})
                   for nl in basis)
@@ -157,6 +162,7 @@ def test_refinement_gradient_is_the_derivative_of_the_output_error(fnsi_chain):
     point, _ = prob.evaluate(shared, own)
     _, g_s, _, _, g_o = prob.normal_equations(point)
     sl = prob.layout.slices()
+    scale = 2 * np.linalg.norm(g_s)
 
     def cost(sh, ow):
         return prob.evaluate(sh, ow, start=point["state"])[1]
@@ -167,7 +173,7 @@ def test_refinement_gradient_is_the_derivative_of_the_output_error(fnsi_chain):
         e = np.zeros_like(shared)
         e[j] = h
         fd = (cost(shared + e, own) - cost(shared - e, own)) / (2 * h)
-        assert 2 * g_s[j] == pytest.approx(fd, rel=1e-3), j
+        assert 2 * g_s[j] == pytest.approx(fd, rel=1e-3, abs=1e-3 * scale), j
     h = 1e-6 * abs(own[0, 0])
     e = np.zeros_like(own)
     e[0, 0] = h
@@ -422,24 +428,35 @@ def _chain5_stop(noise_seed: int):
     return src, cfg
 
 
-def test_a_split_mode_is_left_out_when_its_score_test_says_so():
-    """The robust answer on the 5-DOF chain with searched gaps (seed 11) keeps a weak pole
-    at 16.8 Hz beside the 18.8 Hz mode (MDI 5 against 150). The refinement starts without
-    it and keeps that fit because the pole would explain less of the refined residual than
-    its 18 parameters (section "The output-error refinement", split modes); refined with
-    it, the two poles crawled for 30 steps. Tolerances: issue 15's 2 % and 0.5 %."""
+def test_the_chain_answer_does_not_depend_on_the_blas_thread_count():
+    """The robust answer on the 5-DOF chain with searched gaps (seed 11), refined, is the same
+    with one and two BLAS threads: order, modes, what the refinement leaves out, and the
+    values to 1e-8 (issue 27: the subspace step projected on input-lag directions set by
+    round-off, and the two thread counts gave orders 12 and 10, one with a weak 16.8 Hz pole
+    the refinement then left out). Physics as issue 15's targets: five modes, stiffnesses
+    within 0.5 %, gaps within 2 %."""
+    from fnsi_lab.blas import limit_blas_threads, restored_blas_threads
     src, cfg = _chain5_stop(noise_seed=11)
-    res = fnsi_lab.identify(src, cfg, orders="2:30")
-    j = res.to_json()
+    answers = []
+    with restored_blas_threads():
+        for threads in (1, 2):
+            limit_blas_threads(threads)
+            res = fnsi_lab.identify(src, cfg, orders="2:30")
+            answers.append((res, res.to_json()))
+    (res, j), (_, j2) = answers
+    assert j["order"] == j2["order"]
+    assert (j["output_error"].get("left_out") or []) == (j2["output_error"].get("left_out") or [])
+    assert [m["frequency_hz"] for m in j["modes"]] == pytest.approx(
+        [m["frequency_hz"] for m in j2["modes"]], rel=1e-8)
+    values = [c["value"] for c in j["coefficients"]]
+    assert values == pytest.approx([c["value"] for c in j2["coefficients"]], rel=1e-8)
     oe = j["output_error"]
     assert oe["applied"] and oe["converged"] and oe["iterations"] <= 12
-    (left,) = oe["left_out"]
-    assert 16 < left["frequency_hz"] < 18.5 and left["evidence"] < left["threshold"] == 18
     assert sorted(round(f) for f in res.model.poles.natural_frequency_hz[::2]) == \
         [7, 19, 28, 34, 44]
-    coef = np.array([c["value"] for c in j["coefficients"]]) / [4e4, 3e4] - 1
+    coef = np.array(values) / [4e4, 3e4] - 1
     clear = np.array(j["nonlinearities"][0]["clearances"]) / [2e-4, 3e-4] - 1
     assert np.all(np.abs(clear) < 0.02) and np.all(np.abs(coef) < 0.005), (clear, coef)
     summary = io.StringIO()
     _print_refinement(j, out=summary)                # what `fnsi-lab ident` prints
-    assert "split modes left out: 16." in summary.getvalue()
+    assert "output-error refinement (docs/ident.md): misfit" in summary.getvalue()
