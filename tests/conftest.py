@@ -109,3 +109,12 @@ def write_recording(tmp_path: Path) -> Callable[..., tuple[Path, list[Block]]]:
         return path, blocks
 
     return factory
+
+
+@pytest.fixture(autouse=True)
+def _blas_threads_restored():
+    """Give every test the process's OpenBLAS thread count as it found it (a command run
+    in-process, or a test, that sets it must not decide another test's numbers)."""
+    from fnsi_lab.blas import restored_blas_threads
+    with restored_blas_threads():
+        yield
