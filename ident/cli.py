@@ -87,9 +87,19 @@ def _print_summary(res: dict, out=None) -> None:
         err = (f"  error {c['value_error_percent']:+.3f} %"
                if c.get("value_error_percent") is not None else "")
         print(f"  {c['name']}: value {c['value']:.6g}{err} (LS; mean Re {c['mean_real']:.6g}, "
-              f"std {c['std_real']:.3g}, log10|Re/Im| {c['log10_re_im']:.2f})", file=out)
+              f"std {c['std_real']:.3g}, log10|Re/Im| {c['log10_re_im']:.2f})"
+              f"{verdict_text(c)}", file=out)
     for w in res["warnings"]:
         print(f"  warning: {w}", file=out)
+
+
+def verdict_text(coefficient: dict, *, reason: bool = True) -> str:
+    """``'  [identified]'`` or ``'  [weak: reason]'`` for a coefficient dict (docs/ident.md)."""
+    v = coefficient.get("verdict")
+    if not v:
+        return ""
+    why = coefficient.get("verdict_reason")
+    return f"  [{v}: {why}]" if reason and why and v != "identified" else f"  [{v}]"
 
 
 def objective_sketch(values, objective, width_levels: str = "_.-=+*#") -> str:
@@ -177,7 +187,7 @@ def _print_refinement(res: dict, out=None) -> None:
     for c in res["coefficients"]:
         err = (f"  error {c['value_error_percent']:+.3f} %"
                if c.get("value_error_percent") is not None else "")
-        print(f"  {c['name']}: value {c['value']:.6g}{err}", file=out)
+        print(f"  {c['name']}: value {c['value']:.6g}{err}{verdict_text(c)}", file=out)
 
 
 def _print_auto_summary(res: Any, out=None, warnings: list | tuple = (),
@@ -218,7 +228,8 @@ def _print_auto_summary(res: Any, out=None, warnings: list | tuple = (),
             if mark and refined:
                 mark = " <- FNSI's answer, refined below"
             print(f"  {label} {c['name']}: value {c['value']:.6g}{err} (LS; mean Re "
-                  f"{c['mean_real']:.6g}, std {c['std_real']:.3g}){mark}", file=out)
+                  f"{c['mean_real']:.6g}, std {c['std_real']:.3g}){mark}"
+                  f"{verdict_text(c, reason=bool(mark))}", file=out)
     for w in warnings:
         print(f"  warning: {w}", file=out)
 

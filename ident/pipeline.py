@@ -23,8 +23,9 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from fnsi_lab.ident.basis import ESTIMABLE, Nonlinearity
-from fnsi_lab.ident.coefficients import (CoefficientSpectra, nonlinear_coefficients,
-                                         spread_function, summarize_coefficients)
+from fnsi_lab.ident.coefficients import (CoefficientSpectra, coefficient_spread,
+                                         nonlinear_coefficients, spread_function,
+                                         summarize_coefficients)
 from fnsi_lab.ident.config import IdentConfig
 from fnsi_lab.ident.errors import IdentError, IdentWarning, NoExcitedLineError
 from fnsi_lab.ident.fnsi import StateSpaceModel, model_at_order, subspace_decomposition
@@ -37,6 +38,8 @@ from fnsi_lab.ident.parameter_search import (DEFAULT_SEARCH_ORDER, estimate_basi
                                              has_unknown_parameters)
 from fnsi_lab.ident.periodic import FrequencyData, data_report, prepare_frequency_data, with_basis
 from fnsi_lab.ident.reduction import reduce_model
+from fnsi_lab.ident.regressors import regressor_conditioning
+from fnsi_lab.ident.verdict import coefficient_verdict
 from fnsi_lab.progress import Progress
 
 __all__ = ["IdentSession", "Identification", "prepare_session", "identify_input",
@@ -83,6 +86,7 @@ class IdentSession:
     warnings: list = field(default_factory=list)
     evidence: dict = field(default_factory=dict)
     parameter_search: Any = None
+    cache: dict = field(default_factory=dict, repr=False)
 
 
 def apply_recording_truth(cfg: IdentConfig, truth: Mapping | None) -> tuple[IdentConfig, list[str]]:
@@ -516,8 +520,30 @@ def _coefficient_spectra(session: IdentSession, model: StateSpaceModel) -> Coeff
                                   driving_point=_driving_points(session))
 
 
-def _summaries(spectra: CoefficientSpectra | None) -> list[dict]:
-    return [s.to_dict() for s in summarize_coefficients(spectra)] if spectra is not None else []
+def _conditioning(session: IdentSession):
+    """The regressors' conditioning of the session's current data (cached per data)."""
+    cached = session.cache.get("conditioning")
+    if cached is None or cached[0] is not session.data:
+        cached = (session.data, regressor_conditioning(session.data))
+        session.cache["conditioning"] = cached
+    return cached[1]
+
+
+def _summaries(spectra: CoefficientSpectra | None,
+               session: IdentSession | None = None) -> list[dict]:
+    """Per coefficient the summary dict with its verdict (:mod:`ident.verdict`)."""
+    if spectra is None:
+        return []
+    summaries = [s.to_dict() for s in summarize_coefficients(spectra)]
+    rho = coefficient_spread(spectra)
+    cond = _conditioning(session) if session is not None else None
+    for a, c in enumerate(summaries):
+        vif = None
+        if cond is not None and c["name"] in cond.names:
+            vif = float(cond.inflation[cond.names.index(c["name"])])
+        v = coefficient_verdict(c, float(rho[a]), inflation=vif)
+        c.update(v.to_dict())
+    return summaries
 
 
 @dataclass(eq=False)
@@ -575,7 +601,7 @@ class Identification:
     def coefficients(self) -> list[dict]:
         """Per coefficient: ``name``, ``value`` (the declared answer), ``mean_real``,
         ``std_real``, ``ls_value``, ``error_percent`` ... (docs/ident.md)."""
-        return _summaries(self.coefficient_spectra)
+        return _summaries(self.coefficient_spectra, self.session)
 
     @property
     def modes(self) -> list[dict]:
@@ -646,6 +672,9 @@ class Identification:
         out["modes"] = [dict(m, shape={"re": m["shape"].real, "im": m["shape"].imag})
                         for m in self.modes]
         out["coefficients"] = self.coefficients
+        cond = _conditioning(s) if s.config.nonlinearities else None
+        if cond is not None:
+            out["regressors"] = cond.to_dict()
         out["nonlinearities"] = [_nonlinearity_json(nl, s.parameter_search, s.input.truth,
                                                     self.output_error)
                                  for nl in s.config.nonlinearities]
@@ -815,7 +844,7 @@ def identify_input(inp: IdentInput, cfg: IdentConfig, *, order: int | None = Non
         basis = cfg.nonlinearities
 
         def coefficients(model: StateSpaceModel) -> list[dict] | None:
-            return _summaries(_coefficient_spectra(session, model)) or None
+            return _summaries(_coefficient_spectra(session, model), session) or None
 
         spread = (spread_function(session.data, basis, driving_point=dp)
                   if basis and dp is not None else None)

@@ -139,6 +139,8 @@ def summary_rows(result: Mapping[str, Any]) -> list[tuple[str, str]]:
             text += f"; LS {num(c.get('ls_value'), '.6g')}"
             if c.get("ls_error_percent") is not None:
                 text += f" ({c['ls_error_percent']:+.3f} %)"
+            if c.get("verdict"):
+                text += f"; {c['verdict']}"
             rows.append((f"{c['name']}, {label}", text))
     return rows
 
