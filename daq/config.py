@@ -63,6 +63,12 @@ class ExcitationConfig:
         Seed of the phases (reproducible runs).
     phases : {'random', 'schroeder'}
         Phase law.
+    grid : {'full', 'odd', 'random-odd'}
+        Lines of the band that are excited (:func:`daq.multisine.multisine`): all, the odd
+        ones, or the odd ones less one at random per ``detection_block`` (detection lines
+        for ``fnsi-lab analyse``, docs/discovery.md).
+    detection_block : int
+        Odd lines per block of a random-odd grid (one left out per block).
     levels : tuple of float
         Force levels (RMS, unit of the force channel) of a level sweep: ``acquire`` then
         records one file per level with the same phases (empty: one run at ``rms``).
@@ -79,6 +85,8 @@ class ExcitationConfig:
     realizations: int = 1
     seed: int | None = 0
     phases: Literal["random", "schroeder"] = "random"
+    grid: Literal["full", "odd", "random-odd"] = "full"
+    detection_block: int = 4
     kind: Literal["multisine"] = "multisine"
     levels: tuple[float, ...] = ()
     drive: Any = field(default=None, compare=False, repr=False)
@@ -89,6 +97,10 @@ class ExcitationConfig:
                "samples_per_period": self.samples_per_period, "periods": self.periods,
                "transient_periods": self.transient_periods,
                "realizations": self.realizations, "seed": self.seed, "phases": self.phases}
+        if self.grid != "full":
+            out["grid"] = self.grid
+            if self.grid == "random-odd":
+                out["detection_block"] = self.detection_block
         if self.levels:
             out["levels"] = list(self.levels)
         if self.drive is not None:
@@ -216,6 +228,8 @@ def _parse_excitation(sec: Section, sample_rate_hz: float) -> ExcitationConfig:
         realizations=sec.integer("realizations", 1, minimum=1),
         seed=seed,
         phases=sec.string("phases", "random", choices=("random", "schroeder")),  # type: ignore[arg-type]
+        grid=sec.string("grid", "full", choices=("full", "odd", "random-odd")),  # type: ignore[arg-type]
+        detection_block=sec.integer("detection_block", 4, minimum=2),
         levels=tuple(levels),
     )
     sec.finish()

@@ -100,7 +100,8 @@ class DriveDefinition:
             "layout": "one channel; realizations one after the other; sample "
                       "(r * periods + p) * samples_per_period + n",
             "multisine": {"band_hz": list(ex.band_hz), "rms_newton": ex.rms, "seed": ex.seed,
-                          "phases": ex.phases},
+                          "phases": ex.phases, "grid": ex.grid,
+                          "detection_block": ex.detection_block},
             "scaling": {"unit": self.unit, "volts_per_newton": self.volts_per_newton,
                         "rms": ex.rms * self.scale},
             "excited_lines": [int(k) for k in self.excited_lines],
@@ -171,7 +172,8 @@ def design_drive(excitation: ExcitationConfig, sample_rate_hz: float, *,
 
 def _multisine(ex: ExcitationConfig, fs: float) -> Multisine:
     return multisine(ex.samples_per_period, fs, ex.band_hz, ex.rms, n_periods=ex.periods,
-                     n_realizations=ex.realizations, seed=ex.seed, phases=ex.phases)
+                     n_realizations=ex.realizations, seed=ex.seed, phases=ex.phases,
+                     grid=ex.grid, detection_block=ex.detection_block)
 
 
 def signal_hash(signal: np.ndarray) -> str:
@@ -339,7 +341,8 @@ def load_drive_definition(path: str | Path) -> DriveDefinition:
                               periods=int(data["periods"]),
                               transient_periods=int(data.get("transient_periods", 0)),
                               realizations=int(data["realizations"]), seed=ms["seed"],
-                              phases=ms["phases"])
+                              phases=ms["phases"], grid=ms.get("grid", "full"),
+                              detection_block=int(ms.get("detection_block", 4)))
         fs = float(data["sample_rate_hz"])
         vpn = sc.get("volts_per_newton")
         definition, _ = design_drive(ex, fs, volts_per_newton=None if vpn is None else float(vpn))

@@ -102,11 +102,52 @@ def excited_lines(samples_per_period: int, sample_rate_hz: float,
     return k[(f >= band_hz[0] - tol) & (f <= band_hz[1] + tol)]
 
 
+def random_odd_lines(band_lines: np.ndarray, detection_block: int = 4,
+                     seed: int | None = 0) -> np.ndarray:
+    """The excited lines of a random-odd multisine.
+
+    Parameters
+    ----------
+    band_lines : int ndarray, shape (n,)
+        DFT bins of the band (:func:`excited_lines`).
+    detection_block : int
+        The odd bins are cut into consecutive blocks of this many (>= 2); one bin of every
+        complete block is left out, chosen at random (an incomplete last block is kept
+        whole). Two detection lines are never neighbours: the excited grid then has no gap
+        wider than two odd steps, which the line detection from a measured drive
+        (:func:`ident.excitation.detect_excited_lines`) bridges.
+    seed : int or None
+        The choice is drawn from ``default_rng([seed, 1])`` (None: unpredictable), a stream
+        of its own (the phase draw of ``seed`` is not shifted by it).
+
+    Returns
+    -------
+    int ndarray
+        Excited bins, increasing: odd, without the detection lines.
+    """
+    block = int(detection_block)
+    if block < 2:
+        raise ValueError(f"detection_block must be >= 2 odd lines, got {detection_block}")
+    odd = np.asarray(band_lines, int)
+    odd = odd[odd % 2 == 1]
+    n_blocks = odd.size // block
+    rng = np.random.default_rng(None if seed is None else [int(seed), 1])
+    choice = rng.integers(0, block, size=n_blocks)
+    for b in range(1, n_blocks):  # never two detection lines side by side
+        if choice[b] == 0 and choice[b - 1] == block - 1:
+            choice[b] = 1 + rng.integers(0, block - 1)
+    left_out = np.arange(n_blocks) * block + choice
+    keep = np.ones(odd.size, bool)
+    keep[left_out] = False
+    return odd[keep]
+
+
 def multisine(samples_per_period: int, sample_rate_hz: float, band_hz: tuple[float, float],
               rms: float, *, n_periods: int = 1, n_realizations: int = 1,
               seed: int | None = 0,
               phases: Literal["random", "schroeder"] = "random",
-              grid: Literal["full", "odd"] = "full") -> Multisine:
+              grid: Literal["full", "odd", "random-odd"] = "full",
+              detection_block: int = 4) -> Multisine:
     """Generate a periodic multisine with a flat amplitude spectrum in ``band_hz``.
 
     Parameters
@@ -128,9 +169,16 @@ def multisine(samples_per_period: int, sample_rate_hz: float, band_hz: tuple[flo
     phases : {'random', 'schroeder'}, optional
         Uniform random phases in [0, 2 pi), or Schroeder's low-crest-factor law
         ``phi_k = -pi k (k - 1) / K``.
-    grid : {'full', 'odd'}, optional
+    grid : {'full', 'odd', 'random-odd'}, optional
         Excite every line of the band, or only the odd ones (an odd multisine: the even
-        lines then show noise and even-order distortion, the lab's usual design).
+        lines then show noise and even-order distortion, the lab's usual design), or a
+        random-odd multisine (:func:`random_odd_lines`): the odd lines of the band less one
+        chosen at random in every block of ``detection_block`` consecutive odd lines. The
+        odd lines left out (odd detection lines) then show the odd-order distortion, the even
+        lines the even-order one (the fast method of :mod:`ident.distortion`).
+    detection_block : int, optional
+        Odd lines per block of a random-odd grid, one of which is left out (4: a quarter of
+        the odd lines are detection lines, Pintelon and Schoukens' usual choice).
 
     Returns
     -------
@@ -161,11 +209,13 @@ def multisine(samples_per_period: int, sample_rate_hz: float, band_hz: tuple[flo
         raise ValueError(f"rms must be > 0, got {rms}")
     if phases not in ("random", "schroeder"):
         raise ValueError(f"phases must be 'random' or 'schroeder', got {phases!r}")
-    if grid not in ("full", "odd"):
-        raise ValueError(f"grid must be 'full' or 'odd', got {grid!r}")
+    if grid not in ("full", "odd", "random-odd"):
+        raise ValueError(f"grid must be 'full', 'odd' or 'random-odd', got {grid!r}")
     lines = excited_lines(n, sample_rate_hz, band_hz)
     if grid == "odd":
         lines = lines[lines % 2 == 1]
+    elif grid == "random-odd":
+        lines = random_odd_lines(lines, detection_block, seed)
     if lines.size == 0:
         raise ValueError(f"no DFT line of an {n}-sample period at {sample_rate_hz} Hz lies in {band_hz} Hz")
     rng = np.random.default_rng(seed)

@@ -18,12 +18,13 @@ from typing import Any
 
 __version__ = "0.1.0"
 
-__all__ = ["identify", "open_recording", "acquire", "load_config", "Identification",
+__all__ = ["identify", "analyse", "open_recording", "acquire", "load_config", "Identification",
            "__version__"]
 
 
 def __getattr__(name: str) -> Any:
-    if name in ("identify", "open_recording", "acquire", "load_config", "Identification"):
+    if name in ("identify", "analyse", "open_recording", "acquire", "load_config",
+                "Identification"):
         from fnsi_lab import api
 
         return getattr(api, name)

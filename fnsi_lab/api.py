@@ -23,7 +23,7 @@ import os
 from pathlib import Path
 from typing import Any, Mapping
 
-__all__ = ["identify", "open_recording", "acquire", "load_config", "Identification"]
+__all__ = ["identify", "analyse", "open_recording", "acquire", "load_config", "Identification"]
 
 
 def load_config(config: Any) -> Any:
@@ -142,6 +142,54 @@ def identify(source: Any, config: Any = None, *, order: int | None = None,
     result.session.timings_s["load"] = load_s
     result.session.timings_s["total"] += load_s
     return result
+
+
+def analyse(sources: Any, config: Any = None, *, band_hz: Any = None, alpha: float = 0.01,
+            samples_per_period: int | None = None) -> Any:
+    """Nonlinear distortion analysis of multisine records, before any model.
+
+    Parameters
+    ----------
+    sources : str, path, mapping or IdentInput, or a sequence of them
+        One record, or several records of one structure (e.g. force levels).
+    config : str, path, mapping or IdentConfig, optional
+        Its ``inputs[0].name`` (the drive), ``outputs`` and ``transient_periods`` are used
+        (:func:`load_config`).
+    band_hz : (float, float), optional
+        Analysed band (default: lowest excited line to three times the highest, at most
+        0.45 fs).
+    alpha : float
+        Family-wise false-alarm probability of a record's "nonlinear" verdicts.
+    samples_per_period : int, optional
+        ``N`` when the file does not say (else the config's).
+
+    Returns
+    -------
+    fnsi_lab.ident.analysis.DistortionReport
+        ``.records[i].outputs[j].verdict``, ``.records[i].resonances``, ``.levels``,
+        ``.to_json()`` (what ``fnsi-lab analyse --json`` writes; docs/discovery.md).
+
+    Examples
+    --------
+    >>> import numpy as np, fnsi_lab
+    >>> from fnsi_lab.daq.multisine import multisine
+    >>> ms = multisine(1024, 256.0, (2, 60), 1.0, n_periods=4, grid="random-odd")
+    >>> u = ms.signal[0]
+    >>> y = np.fft.irfft(np.fft.rfft(u) / (1 + 1j * np.fft.rfftfreq(u.size, 1 / 256) / 20), u.size)
+    >>> rng = np.random.default_rng(0)
+    >>> data = {"u": u, "y": y + 1e-3 * rng.standard_normal(u.size), "fs": 256.0, "N": 1024}
+    >>> fnsi_lab.analyse(data).records[0].outputs[0].verdict
+    'linear within the noise'
+    """
+    from fnsi_lab.ident.analysis import analyse_inputs
+
+    cfg = load_config(config) if config is not None else None
+    many = (isinstance(sources, (list, tuple)) and not isinstance(sources, Mapping))
+    items = list(sources) if many else [sources]
+    n = samples_per_period or (cfg.samples_per_period if cfg else None)
+    inputs = [_as_input(s, n) for s in items]
+    return analyse_inputs(inputs, cfg, band_hz=None if band_hz is None else
+                          (float(band_hz[0]), float(band_hz[1])), alpha=alpha)
 
 
 def open_recording(path: str | os.PathLike[str], **kwargs: Any) -> Any:

@@ -28,7 +28,7 @@ from fnsi_lab.blas import restored_blas_threads
 from fnsi_lab.errors import FnsiLabError
 
 #: Modules that contribute subcommands, in help order.
-COMMAND_MODULES = ("fnsi_lab.daq.cli", "fnsi_lab.daq.drive_cli", "fnsi_lab.daq.formats.cli", "fnsi_lab.ident.cli", "fnsi_lab.export.cli", "fnsi_lab.replay.cli", "fnsi_lab.viewer.cli", "fnsi_lab.viewer.report_cli", "fnsi_lab.campaign.cli")
+COMMAND_MODULES = ("fnsi_lab.daq.cli", "fnsi_lab.daq.drive_cli", "fnsi_lab.daq.formats.cli", "fnsi_lab.ident.cli", "fnsi_lab.ident.analyse_cli", "fnsi_lab.export.cli", "fnsi_lab.replay.cli", "fnsi_lab.viewer.cli", "fnsi_lab.viewer.report_cli", "fnsi_lab.campaign.cli")
 
 #: Command -> module registering it, for commands whose module need not be imported to
 #: find them. A module of COMMAND_MODULES whose commands are not listed here still works:
@@ -36,6 +36,7 @@ COMMAND_MODULES = ("fnsi_lab.daq.cli", "fnsi_lab.daq.drive_cli", "fnsi_lab.daq.f
 COMMAND_INDEX = {
     "acquire": "fnsi_lab.daq.cli", "info": "fnsi_lab.daq.cli", "recover": "fnsi_lab.daq.cli",
     "excitation": "fnsi_lab.daq.drive_cli", "ident": "fnsi_lab.ident.cli",
+    "analyse": "fnsi_lab.ident.analyse_cli",
     "run": "fnsi_lab.replay.cli", "live": "fnsi_lab.replay.cli", "replay": "fnsi_lab.replay.cli",
     "view": "fnsi_lab.viewer.cli", "report": "fnsi_lab.viewer.report_cli", "import": "fnsi_lab.daq.formats.cli",
     "export": "fnsi_lab.export.cli",
@@ -43,7 +44,7 @@ COMMAND_INDEX = {
 }
 
 #: Commands that read recordings: they get ``--no-crc-check``.
-READS_RECORDINGS = ("info", "ident", "replay", "report", "export", "batch")
+READS_RECORDINGS = ("info", "ident", "analyse", "replay", "report", "export", "batch")
 
 EPILOG = """\
 examples:

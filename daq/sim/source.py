@@ -339,7 +339,8 @@ class SimulatedSource(Source):
         self._ms: Multisine = multisine(
             excitation.samples_per_period, sample_rate_hz, excitation.band_hz, excitation.rms,
             n_periods=excitation.periods, n_realizations=excitation.realizations,
-            seed=excitation.seed, phases=excitation.phases)
+            seed=excitation.seed, phases=excitation.phases, grid=excitation.grid,
+            detection_block=excitation.detection_block)
         self._dof_of = {ch: model.measured[ch] for ch in model.measured_names}
         self._input_index = {nm: j for j, nm in enumerate(model.input_names)}
         self._realization = 0

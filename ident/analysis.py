@@ -1,0 +1,130 @@
+"""The one entry point of the distortion analysis (``fnsi-lab analyse``, ``fnsi_lab.analyse``).
+
+:func:`analyse_inputs` takes periodic inputs (:class:`ident.io.IdentInput`, one per record)
+and an optional ident config, picks the input channel and the outputs, drops the transient
+periods, finds the excited lines when the record does not carry them, and calls
+:func:`ident.distortion.analyse_arrays` per record; several records are then compared by
+level (:func:`ident.distortion.compare_levels`). Arrays only: files are read at the edge
+(:mod:`fnsi_lab.inputs`).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+from fnsi_lab.ident.config import IdentConfig
+from fnsi_lab.ident.distortion import (DEFAULT_ALPHA, RecordAnalysis, analyse_arrays,
+                                       compare_levels)
+from fnsi_lab.ident.errors import IdentDataError
+from fnsi_lab.ident.excitation import detect_excited_lines
+from fnsi_lab.ident.io import IdentInput, select_channels
+
+__all__ = ["DistortionReport", "analyse_inputs", "analyse_input"]
+
+#: Version of the JSON layout of ``fnsi-lab analyse --json`` (docs/discovery.md).
+JSON_VERSION = 1
+
+
+@dataclass
+class DistortionReport:
+    """Records analysed, and their comparison by level when there are several.
+
+    Attributes
+    ----------
+    records : list of RecordAnalysis
+        In the order given.
+    levels : dict or None
+        :func:`ident.distortion.compare_levels` (two records or more).
+    timings_s : dict
+    """
+
+    records: list[RecordAnalysis]
+    levels: dict | None = None
+    timings_s: dict[str, float] = field(default_factory=dict)
+
+    def to_json(self, spectra: bool = False) -> dict:
+        """The JSON of ``fnsi-lab analyse --json`` (layout in docs/discovery.md)."""
+        return {"kind": "distortion analysis", "version": JSON_VERSION,
+                "records": [r.to_dict(spectra) for r in self.records],
+                "levels": self.levels, "timings_s": dict(self.timings_s)}
+
+
+def _input_channel(inp: IdentInput, cfg: IdentConfig | None) -> str:
+    names = inp.input_channels
+    if cfg is not None and cfg.inputs:
+        return cfg.inputs[0].name
+    if len(names) == 1:
+        return names[0]
+    power = np.mean(inp.u ** 2, axis=(0, 1, 2))
+    driven = [n for n, pw in zip(names, power) if pw > 1e-6 * power.max()]
+    if len(driven) == 1:
+        return driven[0]
+    raise IdentDataError(f"{inp.path}: {len(names)} input channels {list(names)}: the analysis "
+                         "takes one; name it in the config, e.g. 'inputs: [{name: "
+                         f"{names[0]}}}]'")
+
+
+def analyse_input(inp: IdentInput, cfg: IdentConfig | None = None, *,
+                  band_hz: tuple[float, float] | None = None, alpha: float = DEFAULT_ALPHA,
+                  keep_spectra: bool = True) -> RecordAnalysis:
+    """Distortion analysis of one record (see :func:`analyse_inputs`)."""
+    outputs = cfg.outputs if cfg is not None else None
+    name = _input_channel(inp, cfg)
+    inp = select_channels(inp, outputs=outputs, inputs=[name])
+    transient = (cfg.transient_periods if cfg is not None and cfg.transient_periods is not None
+                 else inp.transient_periods) or 0
+    P = inp.u.shape[1]
+    if transient >= P:
+        raise IdentDataError(f"{inp.path}: transient_periods={transient} leaves none of the "
+                             f"{P} periods; lower transient_periods in the config")
+    u = inp.u[:, transient:, :, 0]
+    y = inp.y[:, transient:]
+    N = inp.samples_per_period
+    lines = inp.excited_lines
+    if lines is None or np.asarray(lines).size == 0:
+        U = np.fft.rfft(u, axis=2) / N
+        lines = detect_excited_lines((np.abs(U) ** 2).mean(axis=(0, 1)), inp.sample_rate_hz,
+                                     N).lines
+        if lines.size == 0:
+            raise IdentDataError(f"{inp.path}: no multisine found in input {name!r}: give "
+                                 "'excited_lines' in the file or the drive channel")
+    return analyse_arrays(u, y, inp.sample_rate_hz, np.asarray(lines), input_name=name,
+                          output_names=inp.output_channels, band_hz=band_hz, path=inp.path,
+                          alpha=alpha, keep_spectra=keep_spectra)
+
+
+def analyse_inputs(inputs: Sequence[IdentInput], cfg: IdentConfig | None = None, *,
+                   band_hz: tuple[float, float] | None = None, alpha: float = DEFAULT_ALPHA,
+                   keep_spectra: bool = True) -> DistortionReport:
+    """Distortion analysis of one or several records of one structure.
+
+    Parameters
+    ----------
+    inputs : sequence of IdentInput
+        Periodic records ``u`` (R, P, N, m), ``y`` (R, P, N, p).
+    cfg : IdentConfig, optional
+        Used for ``inputs[0].name`` (the drive), ``outputs`` (subset and order) and
+        ``transient_periods`` (else each record's own, else 0). Its ``band_hz`` is the
+        identification band, not the analysed one (the distortion reaches beyond it).
+    band_hz : (float, float), optional
+        Analysed band (default: lowest excited line to three times the highest, at most
+        0.45 fs).
+    alpha : float
+        Family-wise false-alarm probability of a record's "nonlinear" verdicts.
+    keep_spectra : bool
+        Keep per-line levels for the plots.
+
+    Returns
+    -------
+    DistortionReport
+    """
+    t0 = time.perf_counter()
+    records = [analyse_input(inp, cfg, band_hz=band_hz, alpha=alpha, keep_spectra=keep_spectra)
+               for inp in inputs]
+    levels = compare_levels(records) if len(records) >= 2 else None
+    return DistortionReport(records=records, levels=levels,
+                            timings_s={"analysis": time.perf_counter() - t0})
