@@ -211,3 +211,26 @@ def test_bad_input_messages(tmp_path):
     out.write_text("{}")
     r = _cli("analyse", str(SILVERBOX / "schroeder.npz"), "--json", str(out))
     assert r.returncode == 2 and "--force" in r.stderr and out.read_text() == "{}"
+
+
+def test_rerun_recording_and_report(tmp_path):
+    """--rrd: a real Rerun recording with the analysis tree; --report: one offline page."""
+    from fnsi_lab.viewer import paths
+    from fnsi_lab.viewer.cli import rrd_entities, rrd_text
+
+    paths_in = [_lab_duffing(3.9, rms, tmp_path, f"l{i}") for i, rms in enumerate((0.01, 0.1))]
+    rrd, page = tmp_path / "a.rrd", tmp_path / "a.html"
+    r = _cli("analyse", *map(str, paths_in), "--rrd", str(rrd), "--report", str(page))
+    assert r.returncode == 0, r.stderr
+    ents = set(rrd_entities(rrd))
+    assert any(e.startswith(paths.ANALYSIS_LEVELS + "/l0_npz") for e in ents)
+    assert any(e.startswith(paths.ANALYSIS_FRF) for e in ents)
+    assert any(e.startswith(paths.ANALYSIS_TREND) for e in ents)
+    assert "nonlinear: odd distortion" in rrd_text(rrd, paths.ANALYSIS_SUMMARY)
+    text = page.read_text()
+    assert text.count("<svg") == 3          # two level plots and the BLA overlay
+    assert "odd detection lines" in text
+    assert "<script" not in text and "<link" not in text and "<img" not in text  # offline
+    # a second run refuses to overwrite them
+    r = _cli("analyse", str(paths_in[0]), "--rrd", str(rrd))
+    assert r.returncode == 2 and "--force" in r.stderr

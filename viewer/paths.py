@@ -57,6 +57,15 @@ PARAMETERS = "/ident/parameters"
 CONVERGENCE = "/ident/convergence"
 #: Markdown table of the latest result (the paper's Table 2).
 SUMMARY = "/ident/summary"
+#: Distortion analysis (``fnsi-lab analyse --rrd``): per record, the classic level plot
+#: (output, noise, odd / even detection lines, realisations' spread against frequency) of
+#: the chosen outputs; the BLAs of every record overlaid; distortion and resonances against
+#: level; the verdicts as a markdown table.
+ANALYSIS = "/analysis"
+ANALYSIS_LEVELS = "/analysis/levels"
+ANALYSIS_FRF = "/analysis/frf"
+ANALYSIS_TREND = "/analysis/trend"
+ANALYSIS_SUMMARY = "/analysis/summary"
 #: Live status: scalars (rate, dropped blocks, file size...) and a text log.
 STATUS = "/status"
 STATUS_LOG = "/status/log"
