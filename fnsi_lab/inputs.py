@@ -51,7 +51,10 @@ def input_from_record(rec: Any, path: str = "") -> IdentInput:
                       excited_lines=exc if exc is not None and exc.size else None,
                       output_quantity=q if q in OUTPUT_QUANTITIES else None,
                       truth=getattr(rec, "truth", None), path=path,
-                      notes=tuple(getattr(rec, "notes", ())))
+                      notes=tuple(getattr(rec, "notes", ())),
+                      channel_units={c.name: c.unit for c in (*rec.input_channels,
+                                                               *rec.output_channels)
+                                     if getattr(c, "unit", "")})
 
 
 def _read_mat(path: str) -> dict[str, Any]:

@@ -86,9 +86,10 @@ def _print_summary(res: dict, out=None) -> None:
     for c in res["coefficients"]:
         err = (f"  error {c['value_error_percent']:+.3f} %"
                if c.get("value_error_percent") is not None else "")
-        print(f"  {c['name']}: value {c['value']:.6g}{err} (LS; mean Re {c['mean_real']:.6g}, "
-              f"std {c['std_real']:.3g}, log10|Re/Im| {c['log10_re_im']:.2f})"
-              f"{verdict_text(c)}", file=out)
+        unit = f" {c['unit']}" if c.get("unit") else ""
+        print(f"  {c['name']}: value {c['value']:.6g}{unit}{err} (LS; mean Re "
+              f"{c['mean_real']:.6g}, std {c['std_real']:.3g}, log10|Re/Im| "
+              f"{c['log10_re_im']:.2f}){verdict_text(c)}", file=out)
     for w in res["warnings"]:
         print(f"  warning: {w}", file=out)
 
@@ -187,14 +188,17 @@ def _print_refinement(res: dict, out=None) -> None:
     for c in res["coefficients"]:
         err = (f"  error {c['value_error_percent']:+.3f} %"
                if c.get("value_error_percent") is not None else "")
-        print(f"  {c['name']}: value {c['value']:.6g}{err}{verdict_text(c)}", file=out)
+        unit = f" {c['unit']}" if c.get("unit") else ""
+        print(f"  {c['name']}: value {c['value']:.6g}{unit}{err}{verdict_text(c)}", file=out)
 
 
 def _print_auto_summary(res: Any, out=None, warnings: list | tuple = (),
-                        refined: bool = False) -> None:
+                        refined: bool = False, units: dict | None = None) -> None:
     """Summary of a robust-pipeline result (:class:`~fnsi_lab.ident.auto_result.AutoResult`);
-    ``refined``: the answer is the output-error refinement's (printed after)."""
+    ``refined``: the answer is the output-error refinement's (printed after); ``units``:
+    the JSON's ``units`` block (coefficient units)."""
     out = out or sys.stdout
+    coefficient_units = (units or {}).get("coefficients") or {}
     ic = res.information_criterion
     print(f"information criterion ({ic.criterion}, band {ic.band}): order {res.selected_order}; "
           f"{int(np.sum(~ic.stable))} of {ic.orders.size} orders unstable", file=out)
@@ -227,7 +231,9 @@ def _print_auto_summary(res: Any, out=None, warnings: list | tuple = (),
                                                      and res.mdi_order == res.selected_order) else ""
             if mark and refined:
                 mark = " <- FNSI's answer, refined below"
-            print(f"  {label} {c['name']}: value {c['value']:.6g}{err} (LS; mean Re "
+            unit = coefficient_units.get(c["name"], "")
+            unit = f" {unit}" if unit else ""
+            print(f"  {label} {c['name']}: value {c['value']:.6g}{unit}{err} (LS; mean Re "
                   f"{c['mean_real']:.6g}, std {c['std_real']:.3g}){mark}"
                   f"{verdict_text(c, reason=bool(mark))}", file=out)
     for w in warnings:
@@ -263,7 +269,8 @@ def run_ident(args: argparse.Namespace) -> int:
         _print_parameter_summary(res)
         refined = bool((res.get("output_error") or {}).get("applied"))
         if result.auto is not None:
-            _print_auto_summary(result.auto, warnings=res["warnings"], refined=refined)
+            _print_auto_summary(result.auto, warnings=res["warnings"], refined=refined,
+                                units=res.get("units"))
         else:
             _print_summary(res)
         _print_refinement(res)

@@ -49,6 +49,9 @@ class IdentInput:
         Common quantity of the outputs when known.
     truth : dict or None
     path : str
+    channel_units : mapping str -> str
+        Unit of each channel by name, from the recording's channel table (empty: not
+        known, SI assumed; ``ident.units``).
     """
 
     u: np.ndarray
@@ -63,6 +66,7 @@ class IdentInput:
     truth: dict | None = None
     path: str = ""
     notes: tuple[str, ...] = field(default=())
+    channel_units: Mapping[str, str] = field(default_factory=dict)
 
 
 def _names(value: Any, n: int, prefix: str, what: str, path: str) -> tuple[str, ...]:

@@ -40,6 +40,7 @@ from fnsi_lab.ident.periodic import FrequencyData, data_report, prepare_frequenc
 from fnsi_lab.ident.reduction import reduce_model
 from fnsi_lab.ident.regressors import regressor_conditioning
 from fnsi_lab.ident.verdict import coefficient_verdict
+from fnsi_lab.ident.units import add_coefficient_units, result_units
 from fnsi_lab.progress import Progress
 
 __all__ = ["IdentSession", "Identification", "prepare_session", "identify_input",
@@ -621,6 +622,15 @@ class Identification:
                 for k, (f, z, s, kp) in enumerate(zip(m["frequency_hz"], m["damping_ratio"],
                                                        m["stable"], keep)) if kp]
 
+    @property
+    def units(self) -> dict:
+        """Units of the answer from the channel table (:func:`ident.units.result_units`):
+        ``force``, ``output``, ``length``, ``frf``, ``channels``, ``coefficients``
+        {name: unit}, ``assumed`` (no unit table: SI)."""
+        s, data = self.session, self.data
+        return result_units(s.input.channel_units, data.input_names, data.output_names,
+                            data.output_quantity, s.config.nonlinearities)
+
     def frf(self) -> dict:
         """Measured, model and underlying linear FRFs at the excited lines.
 
@@ -693,7 +703,9 @@ class Identification:
                         and isinstance(out.get(key), dict) else value)
         out["warnings"] = list(s.warnings)
         out["timings_s"] = {**s.timings_s, **out.get("timings_s", {})}
-        return json_safe(out)
+        units = self.units
+        out["units"] = units
+        return add_coefficient_units(json_safe(out), units)
 
     def _fixed_order_dict(self) -> dict:
         data, model, dec = self.data, self.model, self.decomposition

@@ -805,12 +805,14 @@ def summary_rows(update: ServiceUpdate) -> list[tuple[str, str]]:
             ("separation ratio", f"{res.separation_ratio:.3g}"),
             ("confidence", str(res.confidence.get("level", ""))),
             ("identification time", f"{update.ident_s:.2f} s")]
+    units = ai.identification.units["coefficients"]
     for which in ("full", "reduced"):
         for name, curve in (ai.coefficient_curves.get(which) or {}).items():
             band = np.asarray(ai.data.excited, dtype=bool)
             c = np.asarray(curve)[band] if np.size(curve) == band.size else np.asarray(curve)
             mean, std = float(np.mean(c.real)), float(np.std(c.real))
-            text = f"{mean:.5g} ± {std:.3g}"
+            unit = units.get(name, "")
+            text = f"{mean:.5g} ± {std:.3g}" + (f" {unit}" if unit else "")
             exact = ai.exact_coefficients.get(name)
             if exact:
                 text += f" (error {100 * (mean - exact) / exact:+.3f} %)"

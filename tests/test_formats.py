@@ -434,10 +434,14 @@ def test_export_csv_tables(result_json, tmp_path):
         spectra = list(csv.DictReader(fh))
     cs = res["coefficient_spectra"]
     assert [float(r["frequency_hz"]) for r in spectra] == cs["frequency_hz"]
-    assert [float(r["knl_re"]) for r in spectra] == cs["values"]["knl"]["re"]
+    # every column states its unit: the .npz carried none, so SI (N, m) was assumed
+    unit = res["units"]["coefficients"]["knl"]
+    assert res["units"]["assumed"] and unit.startswith("N/m")
+    assert [float(r[f"knl_re [{unit}]"]) for r in spectra] == cs["values"]["knl"]["re"]
     with open(folder / "coefficients.csv") as fh:
         coef = list(csv.DictReader(fh))
     assert float(coef[0]["value"]) == res["coefficients"][0]["value"]
+    assert coef[0]["unit"] == unit == res["coefficients"][0]["unit"]
     # a second export into the same folder is refused without --force
     assert main(["export", str(result_json), "--csv", str(folder), "--quiet"]) == 2
     assert main(["export", str(result_json), "--csv", str(folder), "--quiet", "--force"]) == 0

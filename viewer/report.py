@@ -109,6 +109,21 @@ def exact_values(result: Mapping[str, Any]) -> dict[str, float]:
     return exact
 
 
+def coefficient_unit(result: Mapping[str, Any], name: str) -> str:
+    """Unit of a coefficient (``N/mm``...): the JSON's ``units`` block (``ident.units``);
+    empty for results written before units were recorded."""
+    return str(((result.get("units") or {}).get("coefficients") or {}).get(name) or "")
+
+
+def frf_unit(result: Mapping[str, Any]) -> str:
+    """Unit of the FRFs (output over force, ``mm/N``); empty when the result has none."""
+    return str((result.get("units") or {}).get("frf") or "")
+
+
+def _with_unit(text: str, unit: str) -> str:
+    return f"{text} {unit}" if unit else text
+
+
 def summary_rows(result: Mapping[str, Any]) -> list[tuple[str, str]]:
     """The Table-2-like summary: order decisions, then every coefficient estimate."""
     def num(x: Any, fmt: str = ".4g") -> str:
@@ -133,10 +148,12 @@ def summary_rows(result: Mapping[str, Any]) -> list[tuple[str, str]]:
                   ("reduced model", (result.get("reduced") or {}).get("coefficients"))]
     for label, coeffs in models:
         for c in coeffs or []:
-            text = f"{num(c.get('mean_real'), '.6g')} ± {num(c.get('std_real'), '.3g')}"
+            unit = c.get("unit") or coefficient_unit(result, c["name"])
+            text = _with_unit(f"{num(c.get('mean_real'), '.6g')} ± {num(c.get('std_real'), '.3g')}",
+                              unit)
             if c.get("error_percent") is not None:
                 text += f" (error {c['error_percent']:+.3f} %)"
-            text += f"; LS {num(c.get('ls_value'), '.6g')}"
+            text += "; LS " + _with_unit(num(c.get("ls_value"), ".6g"), unit)
             if c.get("ls_error_percent") is not None:
                 text += f" ({c['ls_error_percent']:+.3f} %)"
             if c.get("verdict"):
@@ -153,7 +170,7 @@ def mode_rows(result: Mapping[str, Any]) -> list[dict]:
     if rows:
         return [{"f (Hz)": f"{r['frequency_hz']:.4g}",
                  "zeta (%)": f"{100 * r['damping_ratio']:.3g}",
-                 "MDI": f"{r[key]:.3g}" if r.get(key) is not None else "-",
+                 "MDI (relative)": f"{r[key]:.3g}" if r.get(key) is not None else "-",
                  "stabilisation": str(r.get("stabilisation") or "-"),
                  "physical": "yes" if r.get("physical") else "no"} for r in rows]
     return [{"f (Hz)": f"{m['frequency_hz']:.4g}", "zeta (%)": f"{100 * m['damping_ratio']:.3g}",
@@ -165,7 +182,9 @@ def coefficient_statistics(result: Mapping[str, Any]) -> list[dict]:
     exact = exact_values(result)
     out = []
     for c in result.get("coefficients") or []:
-        out.append({"coefficient": c["name"], "value (declared)": _g(c.get("value")),
+        out.append({"coefficient": c["name"],
+                    "unit": c.get("unit") or coefficient_unit(result, c["name"]) or "-",
+                    "value (declared)": _g(c.get("value")),
                     "mean Re": _g(c.get("mean_real")), "std Re": _g(c.get("std_real"), 3),
                     "log10 |Re/Im|": _g(c.get("log10_re_im"), 3), "LS value": _g(c.get("ls_value")),
                     "exact": _g(exact.get(c["name"])),
@@ -253,7 +272,7 @@ def figure_mdi(result: Mapping[str, Any]) -> Any:
     if band:
         ax.axvspan(band[0], band[1], color="#0072b2", alpha=0.06, label="processed band")
     ax.set_xlabel("pole frequency (Hz)")
-    ax.set_ylabel(f"MDI ({key.removeprefix('mdi_')})")
+    ax.set_ylabel(f"MDI ({key.removeprefix('mdi_')} norm, relative)")
     ax.set_title(f"Modal dominancy index per pole (order {result.get('mdi_order', '-')})")
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=8)
@@ -299,7 +318,8 @@ def figure_coefficients(result: Mapping[str, Any]) -> Any | None:
                 lo, hi = np.percentile(band_vals, [1, 99])
                 span = max(hi - lo, 1e-12)
                 ax.set_ylim(lo - 0.3 * span, hi + 0.3 * span)
-        ax.set_ylabel(name)
+        unit = coefficient_unit(result, name)
+        ax.set_ylabel(f"{name} ({unit})" if unit else name)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7, loc="upper right")
     axes[0].set_title("Nonlinear coefficient spectra (grey band: excited lines; "
@@ -338,7 +358,8 @@ def figure_frf(result: Mapping[str, Any], output: str | None = None) -> Any | No
     name = (frf.get("outputs") or ["?"])[i]
     force = (frf.get("inputs") or ["force"])[0]
     mag.set_title(f"FRF {name} / {force}")
-    mag.set_ylabel("magnitude (dB)")
+    unit = frf_unit(result)
+    mag.set_ylabel(f"magnitude (dB re 1 {unit})" if unit else "magnitude (dB)")
     ph.set_ylabel("phase (deg)")
     ph.set_yticks([-180, -90, 0, 90, 180])
     ph.set_xlabel("frequency (Hz)")
@@ -409,10 +430,13 @@ def metadata_rows(metadata: Mapping[str, Any] | None,
         rows.append(("channels", f"{len(chans)} (" + ", ".join(f"{n} {q}" for q, n in kinds.items())
                      + ")"))
     exc = md.get("excitation") or {}
-    for k in ("kind", "band_hz", "rms", "samples_per_period", "periods", "transient_periods",
-              "realizations", "sample_rate_hz"):
+    force = (result.get("units") or {}).get("force") or next(
+        (c.get("unit") for c in chans if c.get("quantity") == "force" and c.get("unit")), "")
+    for k, unit in (("kind", ""), ("band_hz", ""), ("rms", force), ("samples_per_period", ""),
+                    ("periods", ""), ("transient_periods", ""), ("realizations", ""),
+                    ("sample_rate_hz", "")):
         if exc.get(k) is not None:
-            rows.append((f"excitation {k.replace('_', ' ')}", str(exc[k])))
+            rows.append((f"excitation {k.replace('_', ' ')}", _with_unit(str(exc[k]), unit)))
     if exc.get("excited_lines") is not None:
         rows.append(("excited lines", str(len(exc["excited_lines"]))))
     truth = md.get("truth") or {}
@@ -423,6 +447,11 @@ def metadata_rows(metadata: Mapping[str, Any] | None,
               "n_realizations", "output_quantity", "time_base"):
         if result.get(k) is not None:
             rows.append((f"identification {k.replace('_', ' ')}", str(result[k])))
+    units = result.get("units") or {}
+    if units.get("force"):
+        rows.append(("units", f"force {units['force']}, outputs {units.get('output')}, FRF "
+                              f"{units.get('frf')}" + (" (assumed SI: the input had no unit "
+                                                       "table)" if units.get("assumed") else "")))
     total = (result.get("timings_s") or {}).get("total")
     if total is not None:
         rows.append(("identification time", f"{total:.2f} s"))

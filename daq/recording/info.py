@@ -141,9 +141,13 @@ def format_info(info: dict[str, Any]) -> str:
     exc = info.get("excitation")
     if exc:
         band = exc.get("band_hz")
+        # the multisine's RMS is in the force channels' unit (the recording's channel table)
+        force_unit = next((c["unit"] for c in info["channels"] if c["quantity"] == "force"
+                           and c.get("unit")), "")
         lines.append(f"excitation: {exc.get('kind', '?')}"
                      + (f" {band[0]:g}-{band[1]:g} Hz" if band else "")
-                     + (f", rms {exc['rms']:g}" if exc.get("rms") is not None else "")
+                     + (f", rms {exc['rms']:g} {force_unit}".rstrip()
+                        if exc.get("rms") is not None else "")
                      + (f", phases {exc['phases']}" if exc.get("phases") else "")
                      + (f", seed {exc['seed']}" if "seed" in exc else ""))
         drive = exc.get("drive")

@@ -90,6 +90,9 @@ class ResultArrays:
     order : int or None
     input_path : str
         The identification's input file as recorded in the result (``input``).
+    units : dict
+        The result's ``units`` block (``force``, ``output``, ``frf``, ``coefficients``
+        {name: unit}...); empty for results written before units were recorded.
     """
 
     path: str
@@ -109,6 +112,7 @@ class ResultArrays:
     coefficients: list[dict] = field(default_factory=list)
     order: int | None = None
     input_path: str = ""
+    units: dict = field(default_factory=dict)
 
 
 def result_from_dict(res: dict, path: str = "<result>") -> ResultArrays:
@@ -191,7 +195,8 @@ def result_from_dict(res: dict, path: str = "<result>") -> ResultArrays:
         frequency_hz=freq, damping_ratio=damp, stable=stable, shapes=shapes, mode_rows=rows,
         frf_frequency_hz=frf_f, frf=frf, spectra_frequency_hz=sp_f, spectra_excited=sp_exc,
         spectra=spectra, coefficients=list(res.get("coefficients") or []),
-        order=res.get("order"), input_path=str(res.get("input") or ""))
+        order=res.get("order"), input_path=str(res.get("input") or ""),
+        units=dict(res.get("units") or {}))
 
 
 def load_result(path: str | os.PathLike[str]) -> ResultArrays:

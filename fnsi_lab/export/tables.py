@@ -64,9 +64,11 @@ def write_tables(folder: str | os.PathLike[str], result: ResultArrays,
         One row per mode and output: ``mode, channel, node, direction, re, im,
         magnitude, phase_deg`` (node and direction empty without DOFs).
     ``coefficients.csv``
-        The coefficient summaries (every scalar field), when the result has any.
+        The coefficient summaries (every scalar field; ``unit`` second when the result
+        records units), when the result has any.
     ``coefficient_spectra.csv``
-        ``frequency_hz, excited`` and ``<name>_re, <name>_im`` per coefficient, when the
+        ``frequency_hz, excited`` and ``<name>_re [unit], <name>_im [unit]`` per
+        coefficient (``<name>_re`` without a unit for results that record none), when the
         result has the spectra.
 
     Returns
@@ -94,14 +96,17 @@ def write_tables(folder: str | os.PathLike[str], result: ResultArrays,
                                         "magnitude", "phase_deg"], shape_rows)
     written.append(out / "mode_shapes.csv")
     if result.coefficients:
-        ckeys = _scalar_keys(result.coefficients, ["name"])
+        first = ["name", "unit"] if any("unit" in c for c in result.coefficients) else ["name"]
+        ckeys = _scalar_keys(result.coefficients, first)
         write_csv(out / "coefficients.csv", ckeys,
                   ([c.get(k) for k in ckeys] for c in result.coefficients))
         written.append(out / "coefficients.csv")
     if result.spectra and result.spectra_frequency_hz is not None:
         names = list(result.spectra)
-        header = ["frequency_hz", "excited"] + [f"{n}_{part}" for n in names
-                                                for part in ("re", "im")]
+        units = result.units.get("coefficients") or {}
+        header = ["frequency_hz", "excited"] + [
+            f"{n}_{part}" + (f" [{units[n]}]" if units.get(n) else "")
+            for n in names for part in ("re", "im")]
         excited = (result.spectra_excited if result.spectra_excited is not None
                    else np.ones(result.spectra_frequency_hz.size, bool))
         columns = [result.spectra[n] for n in names]
