@@ -800,7 +800,9 @@ def _bla_relative_std(G: np.ndarray, g_noise: np.ndarray | None,
                       sets: LineSets) -> np.ndarray:
     """Standard deviation of one realisation's FRF over ``|G|``, shape (F, p): the
     realisations' spread, else the noise plus the distortion of the nearest odd (or mixed)
-    detection lines inside the excited range (fast method), else the noise."""
+    detection lines inside the excited range (fast method), else the noise; at least the
+    BLA's own line-to-line raggedness (a full multisine's distortion has no detection line
+    inside the band)."""
     if g_total is not None:
         var = g_total
     else:
@@ -812,7 +814,15 @@ def _bla_relative_std(G: np.ndarray, g_noise: np.ndarray | None,
             pw = (np.abs(Ym[:, det]) ** 2).mean(axis=0)                 # (L, p)
             dist = np.stack([np.interp(exc, det, pw[:, o]) for o in range(pw.shape[1])], 1)
             var = var + dist / u_pow[:, None]
-    return np.sqrt(var) / np.maximum(np.abs(G), 1e-300)
+    rel = np.sqrt(var) / np.maximum(np.abs(G), 1e-300)
+    if G.shape[0] >= 5:
+        # the BLA's own raggedness: the second difference of independent scatter of
+        # standard deviation s has an RMS of s sqrt(1.5), and the median of a circular
+        # Gaussian's modulus is sqrt(ln 2) of its RMS (robust to the resonances' curvature)
+        d2 = np.abs(G[1:-1] - 0.5 * (G[:-2] + G[2:])) / np.maximum(np.abs(G[1:-1]), 1e-300)
+        ragged = np.median(d2, axis=0) / np.sqrt(1.5 * np.log(2.0))
+        rel = np.maximum(rel, ragged[None, :])
+    return rel
 
 
 def _output_levels(Ym: np.ndarray, g_total: np.ndarray | None, u_pow: np.ndarray,
