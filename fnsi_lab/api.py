@@ -129,16 +129,16 @@ def identify(source: Any, config: Any = None, *, order: int | None = None,
     """
     import time
 
-    from fnsi_lab.ident.pipeline import default_config, identify_input
+    from fnsi_lab.ident.pipeline import identify_request
+    from fnsi_lab.ident.request import resolve_request
 
     t0 = time.perf_counter()
     cfg = load_config(config) if config is not None else None
     inp = _as_input(source, samples_per_period or (cfg.samples_per_period if cfg else None))
-    if cfg is None:
-        cfg = default_config(inp)
+    request = resolve_request(inp, cfg, order=order, orders=orders, reduce_at=reduce_at,
+                              max_order=max_order, block_rows=block_rows)
     load_s = time.perf_counter() - t0
-    result = identify_input(inp, cfg, order=order, orders=orders, reduce_at=reduce_at,
-                            max_order=max_order, block_rows=block_rows, progress=progress)
+    result = identify_request(inp, request, progress=progress)
     result.session.timings_s["load"] = load_s
     result.session.timings_s["total"] += load_s
     return result

@@ -31,7 +31,6 @@ from fnsi_lab.ident.errors import IdentError, IdentWarning, NoExcitedLineError
 from fnsi_lab.ident.fnsi import StateSpaceModel, model_at_order, subspace_decomposition
 from fnsi_lab.ident.io import IdentInput, select_channels
 from fnsi_lab.ident.modal import ModalModel
-from fnsi_lab.ident.options import parse_orders
 from fnsi_lab.ident.output_error import (MAX_MISFIT, OutputErrorFit, omitted_mode_evidence,
                                         refine_output_error, refinement_case)
 from fnsi_lab.ident.parameter_search import (DEFAULT_SEARCH_ORDER, estimate_basis_parameters,
@@ -39,16 +38,15 @@ from fnsi_lab.ident.parameter_search import (DEFAULT_SEARCH_ORDER, estimate_basi
 from fnsi_lab.ident.periodic import FrequencyData, data_report, prepare_frequency_data, with_basis
 from fnsi_lab.ident.reduction import reduce_model
 from fnsi_lab.ident.regressors import regressor_conditioning
+from fnsi_lab.ident.request import (DEFAULT_ORDERS, IdentRequest, basis_from_truth,
+                                    default_config, resolve_request)
 from fnsi_lab.ident.verdict import coefficient_verdict
 from fnsi_lab.ident.units import add_coefficient_units, result_units
 from fnsi_lab.progress import Progress
 
 __all__ = ["IdentSession", "Identification", "prepare_session", "identify_input",
-           "default_config", "apply_recording_truth", "DEFAULT_ORDERS"]
-
-#: Order sweep of the robust pipeline when neither the caller nor the config gives one
-#: (the seed's 2..60).
-DEFAULT_ORDERS = range(2, 61)
+           "default_config", "basis_from_truth", "apply_recording_truth", "DEFAULT_ORDERS",
+           "identify_request"]
 
 
 @dataclass
@@ -123,96 +121,6 @@ def apply_recording_truth(cfg: IdentConfig, truth: Mapping | None) -> tuple[Iden
                          f"recording's truth {given}")
         nls.append(nl)
     return replace(cfg, nonlinearities=tuple(nls)), notes
-
-
-def basis_from_truth(truth: Mapping[str, Any] | None) -> tuple[Nonlinearity, ...]:
-    """Basis functions of a simulated recording's ``truth`` (its nonlinear elements).
-
-    Returns an empty tuple when the truth has none or describes an element this version
-    cannot express (the identification then stays linear).
-    """
-    out = []
-    for el in (truth or {}).get("nonlinearities") or []:
-        try:
-            kind = el["kind"]
-            coeffs = dict(el.get("coefficients") or {})
-            kw: dict[str, Any] = {"name": el["name"], "kind": kind,
-                                  "channels": dict(el.get("channels") or el["dofs"])}
-            if kind == "polynomial":
-                kw.update(exponent=float(el.get("exponent", 3)), signed=bool(el.get("signed")),
-                          argument=el.get("argument", "displacement"))
-                values: tuple = (float(next(iter(coeffs.values()))),) if coeffs else ()
-            elif kind == "trilinear":
-                kw["clearances"] = tuple(float(g) for g in el["clearances"])
-                values = (float(coeffs["neg"]), float(coeffs["pos"]))
-            elif kind == "bilinear":
-                side = "neg" if "neg" in coeffs else "pos"
-                kw.update(side=side, clearance=float(el["clearances"][0]))
-                values = (float(coeffs[side]),)
-            else:
-                values = (float(next(iter(coeffs.values()))),) if coeffs else ()
-            out.append(Nonlinearity(**kw, truth=values or None))
-        except (KeyError, TypeError, ValueError, StopIteration):
-            return ()
-    return tuple(out)
-
-
-def _active_basis(basis: Sequence[Nonlinearity], inp: IdentInput,
-                  quantity: str) -> tuple[Nonlinearity, ...]:
-    """The elements of a truth-derived basis that the recorded motion actually engages.
-
-    A simulated structure may hold stops that the motion never reaches; their basis columns
-    are identically zero and cannot be identified, so they are left out (displacement
-    outputs and displacement-driven elements only; others are kept).
-    """
-    if quantity != "displacement" or not basis:
-        return tuple(basis)
-    from fnsi_lab.ident.basis import evaluate_basis
-
-    q = np.asarray(inp.y)[0, -1]  # last period of the first realization, (N, p)
-    kept = []
-    for nl in basis:
-        if nl.needs_velocity:
-            kept.append(nl)
-            continue
-        try:
-            h = evaluate_basis([nl], q, None, list(inp.output_channels))
-        except (IdentError, KeyError, ValueError):
-            kept.append(nl)  # let the identification report it
-            continue
-        if np.any(h != 0):
-            kept.append(nl)
-    return tuple(kept)
-
-
-def default_config(inp: IdentInput, *, harmonics: float = 1.0,
-                   driving_point: str | None = None) -> IdentConfig:
-    """The configuration used when the caller gives none.
-
-    Band: the excited lines (or the whole spectrum without them); with basis functions
-    from a simulated recording's truth the band reaches ``harmonics`` times the highest
-    excited frequency (capped at 0.45 fs), where the nonlinear distortion lives (the seed
-    excites 5-50 Hz and processes 5-250 Hz: 5). Basis: the truth's elements that the motion
-    engages (none for measured data: a linear identification).
-    """
-    from fnsi_lab.ident.config import InputSpec
-
-    fs, n = inp.sample_rate_hz, inp.samples_per_period
-    df = fs / n
-    quantity = inp.output_quantity or "displacement"
-    basis = _active_basis(basis_from_truth(inp.truth), inp, quantity)
-    lines = np.asarray(inp.excited_lines) if inp.excited_lines is not None else np.zeros(0)
-    if lines.size:
-        hi = float(lines.max()) * df
-        if basis and harmonics > 1:
-            hi = min(harmonics * hi, 0.45 * fs)
-        band = (float(lines.min()) * df, hi)
-    else:
-        band = (df, fs / 2 - df)
-    inputs: tuple = ()
-    if driving_point is not None and inp.input_channels:
-        inputs = (InputSpec(inp.input_channels[0], driving_point),)
-    return IdentConfig(band_hz=band, nonlinearities=basis, inputs=inputs)
 
 
 def prepare_session(inp: IdentInput, cfg: IdentConfig, *, search_order: int | None = None,
@@ -820,8 +728,31 @@ def identify_input(inp: IdentInput, cfg: IdentConfig, *, order: int | None = Non
     IdentError
         Bad configuration for these data, or no stable model.
     """
+    request = resolve_request(inp, cfg, order=order, orders=orders, reduce_at=reduce_at,
+                              max_order=max_order, block_rows=block_rows)
+    return identify_request(inp, request, progress=progress)
+
+
+def identify_request(inp: IdentInput, request: IdentRequest, *,
+                     progress: Any = None) -> Identification:
+    """Identify with resolved settings (:func:`ident.request.resolve_request`).
+
+    Parameters
+    ----------
+    inp : IdentInput
+        Periodic forces and responses.
+    request : IdentRequest
+        The configuration, the fixed order or the sweep, and the decomposition's sizes.
+    progress : bool or fnsi_lab.progress.Progress, optional
+        Progress bar over the orders of the sweep.
+
+    Returns
+    -------
+    Identification
+    """
     t0 = time.perf_counter()
-    sweep = (parse_orders(orders) if orders is not None else list(cfg.orders or DEFAULT_ORDERS))
+    cfg, order, sweep = request.config, request.order, list(request.orders)
+    reduce_at, max_order, block_rows = request.reduce_at, request.max_order, request.block_rows
     search_order = (int(order) if order is not None
                     else min(cfg.order or DEFAULT_SEARCH_ORDER, max(sweep)))
     # without any order given, the criterion picks the search's (at most search_order)

@@ -20,7 +20,7 @@ from fnsi_lab.errors import ConfigError
 from fnsi_lab.blas import limit_blas_threads
 from fnsi_lab.progress import announce_simulator_compile
 
-DEFAULT_ORDERS = "2:40"
+from fnsi_lab.ident.request import DEFAULT_ORDERS
 
 
 # ---------------------------------------------------------------------------- helpers
@@ -42,10 +42,7 @@ def make_identifier(args: argparse.Namespace, metadata: dict[str, Any],
 
         config = load_config(args.ident)  # a file, or a packaged example by name
         check_ident_channels(config, channels)
-    orders = getattr(args, "orders", None)
-    if orders is None and (config is None or not config.orders):
-        orders = getattr(args, "default_orders", DEFAULT_ORDERS)
-    return config_identifier(config, truth=metadata.get("truth"), orders=orders,
+    return config_identifier(config, truth=metadata.get("truth"), orders=getattr(args, "orders", None),
                              channels=channels, harmonics=getattr(args, "harmonics", 1.0))
 
 
@@ -480,8 +477,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 # ---------------------------------------------------------------------------- parser
-def _common(p: argparse.ArgumentParser, orders: str = DEFAULT_ORDERS,
-            harmonics: float = 1.0) -> None:
+def _common(p: argparse.ArgumentParser, harmonics: float = 1.0) -> None:
     from fnsi_lab.viewer.cli import add_viewer_arguments
 
     g = p.add_argument_group("identification")
@@ -489,8 +485,8 @@ def _common(p: argparse.ArgumentParser, orders: str = DEFAULT_ORDERS,
                    help="identification config (basis functions, band, options)")
     g.add_argument("--orders", default=None, metavar="FIRST:LAST",
                    help=f"model orders of the sweep: FIRST:LAST, FIRST:LAST:STEP or a list "
-                        f"4,6,8 (default: the --ident file's auto.orders, else {orders})")
-    p.set_defaults(default_orders=orders)
+                        "4,6,8 (default: the --ident file's auto.orders, else "
+                        f"{DEFAULT_ORDERS[0]}:{DEFAULT_ORDERS[-1]}, as fnsi-lab ident)")
     g.add_argument("--harmonics", type=float, default=harmonics, metavar="K",
                    help="without --ident: process the lines up to K times the highest excited "
                         "frequency, where the nonlinear distortion lives (5: the paper's "
@@ -553,7 +549,7 @@ def register(subparsers: Any) -> None:
                         "same name with .html)")
     p.add_argument("--no-report", dest="html_report", action="store_false",
                    help="do not write the HTML report")
-    _common(p, orders="2:60", harmonics=5.0)
+    _common(p, harmonics=5.0)
     p.set_defaults(handler=_cmd_run, speed=None, html_report=True)
 
     p = subparsers.add_parser(

@@ -855,8 +855,8 @@ def config_identifier(config: Any = None, *, truth: Mapping[str, Any] | None = N
     truth : mapping, optional
         Recording truth (nonlinear elements, exact coefficients).
     orders : str or sequence of int, optional
-        Order sweep; default the config's ``auto.orders``, else 2..40 (live default: a
-        period must be identified before the next one ends).
+        Order sweep; default the config's ``auto.orders``, else
+        :data:`fnsi_lab.ident.request.DEFAULT_ORDERS` (2..60, as ``fnsi-lab ident --auto``).
     channels : sequence of ChannelInfo
         The recording's channels (driving point when the config names none).
     harmonics : float
@@ -873,15 +873,14 @@ def config_identifier(config: Any = None, *, truth: Mapping[str, Any] | None = N
     from dataclasses import replace
 
     from fnsi_lab.ident.options import parse_orders
-    from fnsi_lab.ident.pipeline import default_config, identify_input
+    from fnsi_lab.ident.pipeline import identify_request
+    from fnsi_lab.ident.request import DEFAULT_ORDERS, resolve_request
     from fnsi_lab.inputs import input_from_record
 
-    if orders is not None:
-        sweep = parse_orders(orders)
-    elif config is not None and config.orders:
-        sweep = list(config.orders)
-    else:
-        sweep = list(range(2, 41))
+    # for the description only: each snapshot's request is resolved as `ident` resolves it
+    sweep = (parse_orders(orders) if orders is not None
+             else list(config.orders) if config is not None and config.orders
+             else list(DEFAULT_ORDERS))
     outputs = [c for c in channels if not c.is_force]
     inputs = [c for c in channels if c.is_force]
     dp_name = outputs[driving_point(outputs, inputs)].name if outputs and inputs else None
@@ -894,11 +893,11 @@ def config_identifier(config: Any = None, *, truth: Mapping[str, Any] | None = N
             inp = replace(inp, truth=None)
         elif inp.truth is None and truth is not None:
             inp = replace(inp, truth=dict(truth))
-        cfg = config if config is not None else default_config(
-            inp, harmonics=harmonics, driving_point=dp_name)
+        request = resolve_request(inp, config, orders=orders, harmonics=harmonics,
+                                  driving_point=dp_name)
         with warnings.catch_warnings():  # steady-state warnings go to the status, not stderr
             warnings.simplefilter("ignore")
-            ident = identify_input(inp, cfg, orders=sweep)
+            ident = identify_request(inp, request)
         curves: dict = {}
         if ident.config.nonlinearities:
             res = ident.auto
@@ -918,6 +917,6 @@ def config_identifier(config: Any = None, *, truth: Mapping[str, Any] | None = N
     return identify, what
 
 
-def auto_identifier(*, orders: Sequence[int] | str | None = range(2, 41)) -> Identifier:
+def auto_identifier(*, orders: Sequence[int] | str | None = None) -> Identifier:
     """A linear ``identify(record)`` over the excited band (no config, no basis functions)."""
     return config_identifier(None, orders=orders, use_truth=False)[0]

@@ -171,11 +171,11 @@ def test_replay_honours_the_auto_section_of_the_ident_file(tmp_path, capsys):
         return text, selected, physical
 
     text, selected, physical = replay(plain)
-    assert "orders 2-40" in text            # the live default sweep
+    assert "orders 2-60" in text            # the one default sweep (ident.request)
     assert physical >= 2                     # the chain has three modes
     assert selected > 8
     text, selected, physical = replay(with_auto)
-    assert "orders 2-8" in text and "orders 2-40" not in text
+    assert "orders 2-8" in text and "orders 2-60" not in text
     assert selected <= 8
     assert physical == 1                     # top_n: 1
     text, selected, physical = replay(with_auto, "--orders", "2:6")

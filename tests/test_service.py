@@ -131,6 +131,34 @@ def test_replay_reproduces_the_identification_of_the_original_data_exactly(tmp_p
                          - f_true)) < 0.01
 
 
+def test_replay_and_ident_give_one_answer_on_one_recording(tmp_path):
+    """Issue 28: the replayed (= live) identification and ``fnsi-lab ident --auto`` resolve
+    the same request (ident.request): the same default sweep (2..60, where replay used
+    2..40), so the same order, modes and criterion on the same recording."""
+    import json
+
+    from fnsi_lab.cli import main
+    from fnsi_lab.ident.request import DEFAULT_ORDERS
+    from fnsi_lab.replay.service import config_identifier
+
+    data, meta = two_dof(4, noise=0.01)
+    path = record(tmp_path / "r.mcap", data, meta)
+    src = ReplaySource(path)
+    identify, what = config_identifier(None, channels=src.channels)
+    assert f"orders {DEFAULT_ORDERS[0]}-{DEFAULT_ORDERS[-1]}" in what
+    service = IdentService.for_recording_metadata(src.channels, src.sample_rate_hz,
+                                                  src.metadata, identify).start(src)
+    service.finish()
+    src.close()
+    live = service.updates[-1].result.identification.to_json()
+    assert main(["ident", str(path), "--auto", "--json", str(tmp_path / "r.json")]) == 0
+    offline = json.loads((tmp_path / "r.json").read_text())
+    assert [r["order"] for r in live["information_criterion"]] == list(DEFAULT_ORDERS)
+    assert live["order"] == offline["order"]
+    assert [m["frequency_hz"] for m in live["modes"]] == pytest.approx(
+        [m["frequency_hz"] for m in offline["modes"]], rel=1e-9)
+
+
 # ---------------------------------------------------------------------------- load
 def test_fast_source_slow_identification_skips_cleanly_and_recording_is_complete(tmp_path):
     """A source far faster than real time, an identification that takes 0.15 s."""
