@@ -183,7 +183,7 @@ def test_view_command_lists_entities_and_prints_the_summary(rec_path, capsys):
     vlog.log_information_criterion(rec, [2, 4], [1.0, 0.5], 4)
     _finish(rec)
     assert set(rrd_entities(path)) >= {paths.SUMMARY, paths.ORDER_CRITERION}
-    assert main(["view", str(path)]) == 0
+    assert main(["view", str(path), "--list"]) == 0
     out = capsys.readouterr().out
     assert paths.ORDER_CRITERION in out and "| selected order | 26 |" in out
     assert main(["view", str(path.parent / "nope.rrd")]) == 2
@@ -291,3 +291,49 @@ def test_lines_of_several_realizations_are_drawn_in_frequency_order(rec_path):
     # a phase wrap breaks the line instead of drawing a vertical jump
     wrapped = phase_deg(np.exp(1j * np.radians([170.0, 179.0, -179.0, -170.0])))
     assert np.isnan(wrapped[2]) and wrapped[1] == pytest.approx(179.0)
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_view_without_a_display_serves_the_web_viewer_and_prints_its_url(rec_path):
+    """`fnsi-lab view F.rrd` opens the file: on a machine without a display, the web viewer
+    on localhost (a real `rerun --serve-web`), its URL printed; Ctrl-C stops it (exit 0)."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+    import urllib.request
+
+    rec, path = rec_path
+    vlog.log_information_criterion(rec, [2, 4], [1.0, 0.5], 4)
+    _finish(rec)
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    web, grpc = _free_port(), _free_port()
+    proc = subprocess.Popen([sys.executable, "-m", "fnsi_lab", "view", str(path),
+                             "--web-port", str(web), "--grpc-port", str(grpc)], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        line = ""
+        deadline = time.monotonic() + 60
+        while "serving" not in line and time.monotonic() < deadline and proc.poll() is None:
+            line = proc.stdout.readline()
+        assert "serving" in line and f"http://127.0.0.1:{web}" in line, (line, proc.poll())
+        url = line.split(" at ", 1)[1].split()[0]
+        with urllib.request.urlopen(url, timeout=10) as page:
+            assert page.status == 200
+    finally:
+        proc.send_signal(signal.SIGINT)
+        try:
+            out, err = proc.communicate(timeout=30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            out, err = proc.communicate()
+    assert proc.returncode == 0, err
+    assert "no display: serving the web viewer" in err

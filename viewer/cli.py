@@ -329,14 +329,25 @@ def _cmd_view(args: argparse.Namespace) -> int:
     from fnsi_lab.viewer import paths
 
     counts = rrd_entities(args.file)
-    print(f"{args.file}: {len(counts)} entities, {sum(counts.values())} rows")
-    for entity in sorted(counts):
-        if not entity.startswith("/__"):
-            print(f"  {entity:<48} {counts[entity]:>8} rows")
-    summary = rrd_text(args.file, paths.SUMMARY)
-    if summary:
-        print()
-        print(summary.rstrip())
+    opens = not args.list and not (args.spawn or args.connect or args.serve_web)
+    if opens:  # no option: open it, natively where a display exists, else in a browser
+        if has_display() and shutil.which("rerun"):
+            args.spawn = True
+        else:
+            args.serve_web = True
+            print("no display: serving the web viewer instead of a window (use --list to "
+                  "print what the file holds)", file=sys.stderr)
+    if args.list or not opens:
+        print(f"{args.file}: {len(counts)} entities, {sum(counts.values())} rows")
+    if args.list:
+        for entity in sorted(counts):
+            if not entity.startswith("/__"):
+                print(f"  {entity:<48} {counts[entity]:>8} rows")
+        summary = rrd_text(args.file, paths.SUMMARY)
+        if summary:
+            print()
+            print(summary.rstrip())
+        return 0
     if args.spawn:
         exe = shutil.which("rerun")
         if exe is None:
@@ -346,6 +357,7 @@ def _cmd_view(args: argparse.Namespace) -> int:
                   f"and run `rerun {args.file}`, or use --serve-web", file=sys.stderr)
             return 0
         subprocess.Popen([exe, str(args.file)], start_new_session=True)
+        print(f"opening {args.file} in the Rerun viewer (a window)", file=sys.stderr)
         return 0
     if args.connect or args.serve_web:
         import rerun as rr
@@ -359,7 +371,9 @@ def _cmd_view(args: argparse.Namespace) -> int:
         for note in sinks.notes:
             print(note, file=sys.stderr)
         if sinks.web_url:
-            print(f"serving {args.file} at {sinks.web_url} (Ctrl-C to stop)", file=sys.stderr)
+            # stdout: the one line a user (or a script) needs
+            print(f"serving {args.file} at {sinks.web_url} (open it in a browser; Ctrl-C "
+                  "to stop)", flush=True)
             try:
                 while True:
                     time.sleep(3600)
@@ -372,15 +386,19 @@ def _cmd_view(args: argparse.Namespace) -> int:
 def register(subparsers: Any) -> None:
     """Add the ``view`` subcommand."""
     p = subparsers.add_parser(
-        "view", help="list and open a saved Rerun recording (.rrd)",
-        description="Print what an .rrd file holds (entities, rows, the identification "
-                    "summary) and optionally open it in a Rerun viewer.",
+        "view", help="open a saved Rerun recording (.rrd) in the viewer",
+        description="Open an .rrd file in the Rerun viewer: a native window where a display "
+                    "exists, else the web viewer served on this machine (the URL is printed; "
+                    "Ctrl-C stops it). --list prints what the file holds instead.",
         epilog="examples:\n"
-               "  fnsi-lab view run.rrd                 # list entities and the summary\n"
-               "  fnsi-lab view run.rrd --spawn         # open it in the native viewer\n"
+               "  fnsi-lab view run.rrd                 # a window, or the web viewer's URL\n"
+               "  fnsi-lab view run.rrd --list          # entities and the summary, no viewer\n"
+               "  fnsi-lab view run.rrd --spawn         # the native viewer\n"
                "  fnsi-lab view run.rrd --serve-web     # http://127.0.0.1:9090 in a browser\n",
         formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("file", metavar="FILE.rrd", help="a recording saved with --rrd")
+    p.add_argument("--list", action="store_true",
+                   help="print the entities and the identification summary, open nothing")
     p.add_argument("--spawn", action="store_true", help="open it in the native Rerun viewer")
     p.add_argument("--connect", metavar="URL", nargs="?", const=DEFAULT_CONNECT_URL,
                    help="send it to a running viewer")
