@@ -8,6 +8,8 @@ statistics and the event queue. An adapter implements one private hook,
 
 from __future__ import annotations
 
+import logging
+
 import threading
 import time
 from abc import ABC, abstractmethod
@@ -175,8 +177,8 @@ class Source(ABC):
         try:
             if getattr(self, "_state", "closed") != "closed":
                 self.close()
-        except Exception:
-            pass
+        except Exception as exc:  # noqa: BLE001 - nothing may escape __del__; still said
+            logging.getLogger("fnsi_lab.daq").debug("closing %r at collection: %s", self, exc)
 
     # ------------------------------------------------------------------ reading
     def read(self, timeout: float | None = None) -> Block | None:

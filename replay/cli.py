@@ -8,6 +8,8 @@ result table (the paper's Table 2 layout) on stdout.
 
 from __future__ import annotations
 
+import logging
+
 import argparse
 import os
 import sys
@@ -349,8 +351,9 @@ def _cmd_replay(args: argparse.Namespace) -> int:
             source.close()
             try:
                 service.finish(timeout=5.0)
-            except Exception:  # the closed source ends the assembler with an error
-                pass
+            except Exception as exc:  # noqa: BLE001 - the closed source ends the assembler
+                # with an error; what was identified before the interrupt is reported below
+                logging.getLogger("fnsi_lab.replay").debug("after the interrupt: %s", exc)
         run.flush_signals()
         run.stop_status()
         wall = time.monotonic() - t0

@@ -10,6 +10,8 @@ in the pattern of python-can's ``MessageSync``.
 
 from __future__ import annotations
 
+import logging
+
 import json
 import os
 import queue
@@ -395,8 +397,8 @@ class ReplaySource(Source):
         if self._records is not None:
             try:
                 self._records.close()  # type: ignore[attr-defined]
-            except Exception:
-                pass
+            except Exception as exc:  # noqa: BLE001 - closing a read-only file: data safe
+                logging.getLogger("fnsi_lab.replay").debug("closing the recording: %s", exc)
 
     def describe(self) -> dict[str, Any]:
         """The recorded metadata (excitation, truth...) plus where it was replayed from."""

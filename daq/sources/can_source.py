@@ -438,8 +438,8 @@ class CanSource(Source):
                 wake.set()
                 try:
                     bus.shutdown()
-                except Exception:
-                    pass
+                except Exception as shut_exc:  # noqa: BLE001 - the bus is gone anyway
+                    logging.getLogger("fnsi_lab.daq").debug("CAN bus shutdown: %s", shut_exc)
                 self._bus = None
                 stop.wait(self._reconnect_s)
                 continue
@@ -767,8 +767,10 @@ class CanSource(Source):
         text = ""
         try:  # re-serialised: the DBC as cantools understood it
             text = self._db.as_dbc_string()
-        except Exception:
-            pass
+        except Exception as exc:  # noqa: BLE001 - cantools cannot write back every DBC
+            logging.getLogger("fnsi_lab.daq").warning(
+                "the DBC could not be re-serialised for the recording's metadata (%s); its "
+                "SHA-256 and the signal map are still recorded", exc)
         out["source"]["can"] = {
             "bus": {k: v if isinstance(v, (str, int, float, bool)) or v is None else str(v)
                     for k, v in self._bus_kwargs.items()},

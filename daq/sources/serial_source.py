@@ -45,6 +45,8 @@ rate check uses windows of ``rate_window_s`` (default 2 s) to average that out.
 
 from __future__ import annotations
 
+import logging
+
 import binascii
 import struct
 import threading
@@ -403,8 +405,9 @@ class SerialSource(Source):
                 self._post("disconnected", url=self._url, error=f"{type(exc).__name__}: {exc}")
                 try:
                     port.close()
-                except Exception:
-                    pass
+                except Exception as close_exc:  # noqa: BLE001 - the port is gone anyway
+                    logging.getLogger("fnsi_lab.daq").debug("closing %s: %s", self._url,
+                                                            close_exc)
                 self._port = None
                 stop.wait(self._reconnect_s)
                 continue

@@ -336,8 +336,8 @@ def identify_task(item: PlannedInput, spec: BatchSpec) -> dict[str, Any]:
         row = error_row(item, worker=worker, error=f"{type(exc).__name__}: {_one_line(exc)}")
         try:  # the level of a failed run still places it in the comparison
             row["force_rms"] = recording_context(item.path).get("force_rms")
-        except Exception:  # noqa: BLE001 - an unreadable input has no level
-            pass
+        except Exception as ctx_exc:  # noqa: BLE001 - an unreadable input has no level
+            logging.getLogger("fnsi_lab.campaign").debug("%s: no level (%s)", item.path, ctx_exc)
         return row
     return result_row(result, item, status="ok")
 
