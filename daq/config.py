@@ -17,6 +17,7 @@ A file looks like ``daq/data/smallsat.yaml`` (the default experiment)::
       realizations: 1
       seed: 0
       phases: random          # or schroeder
+      grid: full              # or odd, random-odd (detection lines: docs/discovery.md)
     # excitation: {file: drive.json}   # instead: an exported drive (docs/hardware.md)
     trigger: {channel: F-NC2W-Z, level: 20.0, slope: rising, pre_samples: 500}  # optional
     channels:                 # optional for simulated sources: the model's own table
