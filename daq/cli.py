@@ -51,7 +51,7 @@ def _acquire_started(args: argparse.Namespace, restart_gc: bool) -> int:
             gc.enable()
         return _acquire_levels(args, config)
     output = str(check_output_path(config.output if args.out is None else args.out,
-                                   force=args.force))
+                                   force=args.force, inputs=[args.config, config.file]))
     total = None
     if config.excitation is not None and config.source.kind in ("simulated", "smallsat", "aircraft"):
         ex = config.excitation
@@ -111,7 +111,7 @@ def _acquire_levels(args: argparse.Namespace, config: Any) -> int:
     folder.mkdir(parents=True, exist_ok=True)
     runs = config.level_runs(folder)
     for _, run in runs:  # refuse before recording anything
-        check_output_path(run.output, force=args.force)
+        check_output_path(run.output, force=args.force, inputs=[args.config, config.file])
     for i, (level, run) in enumerate(runs, 1):
         if not args.quiet:
             print(f"level {i}/{len(runs)}: {level:g} RMS -> {run.output}", file=sys.stderr)
@@ -140,7 +140,7 @@ def _recover(args: argparse.Namespace) -> int:
     from fnsi_lab.daq.recording.recover import recover
     from fnsi_lab.outputs import check_output_path
 
-    check_output_path(args.out, force=args.force, option="OUT")
+    check_output_path(args.out, force=args.force, option="OUT", inputs=[args.broken])
     report = recover(args.broken, args.out)
     print(report.summary())
     if not report.sample_messages:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from fnsi_lab import arguments as opt
 from fnsi_lab.progress import Progress
 
 
@@ -12,8 +13,9 @@ def _excitation(args: argparse.Namespace) -> int:
     from fnsi_lab.daq.drive import design_drive, sidecar_path, write_drive, write_sidecar
     from fnsi_lab.outputs import check_output_path
 
-    out = check_output_path(args.out, force=args.force, option="--out")
-    side = check_output_path(sidecar_path(out), force=args.force, option="--out's sidecar")
+    out = check_output_path(args.out, force=args.force, option="--out", inputs=[args.config])
+    side = check_output_path(sidecar_path(out), force=args.force, option="--out's sidecar",
+                             inputs=[args.config, out])
     config = load_experiment(args.config)
     if config.excitation is None:
         raise config.error("excitation", "the experiment has no excitation to export",
@@ -62,13 +64,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, metavar="DRIVE.{wav,csv,npy,tdms}",
                    help="drive file; its format follows the extension; DRIVE.json is written "
                         "next to it")
-    p.add_argument("--volts-per-newton", type=float, metavar="K",
+    p.add_argument("--volts-per-newton", type=opt.POSITIVE_SCALE, metavar="K",
                    help="scale the force to the amplifier input in volts (default: newtons)")
-    p.add_argument("--periods", type=int, metavar="P",
+    p.add_argument("--periods", type=opt.PERIODS, metavar="P",
                    help="periods per realization in the file (default: the experiment's)")
     p.add_argument("--wav-encoding", choices=("float32", "pcm24"), default="float32",
                    help="WAV samples: 32-bit float (default) or 24-bit PCM")
-    p.add_argument("--full-scale", type=float, metavar="VALUE",
+    p.add_argument("--full-scale", type=opt.POSITIVE_SCALE, metavar="VALUE",
                    help="WAV: drive value (V or N) of digital full scale (default: the peak)")
     p.add_argument("--force", action="store_true", help="replace existing files")
     p.add_argument("--quiet", action="store_true", help="no progress bar")

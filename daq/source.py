@@ -90,7 +90,9 @@ class Source(ABC):
             raise ConfigError(f"sample rate must be > 0, got {sample_rate_hz}",
                               field="sample_rate_hz")
         if pace is not None and not pace > 0:
-            raise ConfigError(f"pace must be > 0, got {pace}", field="pace")
+            raise ConfigError(f"must be > 0, got {pace}", field="pace (--speed)",
+                              fix="give recorded seconds per wall second, e.g. 1 for real "
+                                  "time, or none (--fast) for as fast as possible")
         self._channels = tuple(channels)
         self._sample_rate_hz = float(sample_rate_hz)
         self._pace = pace

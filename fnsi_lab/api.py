@@ -69,6 +69,25 @@ def _as_input(source: Any, samples_per_period: int | None) -> Any:
     return load_input(source, samples_per_period=samples_per_period)
 
 
+def _recorded_driving_point(source: Any) -> str | None:
+    """The output a recording's channel table places at its first force's node and
+    direction (or whose name ends the force's: ``F-NC2W-Z`` -> ``NC2W-Z``); None when the
+    source is not a recording or its table does not say."""
+    if not isinstance(source, (str, os.PathLike)) or Path(source).suffix.lower() != ".mcap":
+        return None
+    from fnsi_lab.daq.recording.reader import open_recording as _open
+
+    with _open(source) as rec:
+        outs, ins = rec.output_channels, rec.input_channels
+    if not ins:
+        return None
+    force = ins[0]
+    for c in outs:
+        if force.node and c.node == force.node and c.direction == force.direction:
+            return c.name
+    return next((c.name for c in outs if force.name.endswith(c.name)), None)
+
+
 def identify(source: Any, config: Any = None, *, order: int | None = None,
              orders: Any = None, reduce_at: int | None = None, max_order: int | None = None,
              block_rows: int | None = None, progress: Any = False,
@@ -82,10 +101,13 @@ def identify(source: Any, config: Any = None, *, order: int | None = None,
         ``fs``, optional ``N``, ``channels``, ...; docs/ident.md), the same arrays as a
         mapping, or an :class:`~fnsi_lab.ident.io.IdentInput`.
     config : str, path, mapping or IdentConfig, optional
-        See :func:`load_config`. None: the excited band, and for simulated recordings the
-        basis functions of the recording's truth (measured data: a linear model).
+        See :func:`load_config`. None: the excited band, the driving point where a
+        recording's channel table puts an output at the force's node and direction, and for
+        simulated recordings the basis functions of the recording's truth (measured data: a
+        linear model).
     order : int, optional
-        Fixed model order. None (default): the robust automatic pipeline (information
+        Fixed model order, a whole number >= 1 (``6.0`` is 6; ``6.7`` or ``'x'`` are refused
+        as on the command line). None (default): the robust automatic pipeline (information
         criterion, stabilisation, modal dominancy index, reduction).
     orders : str or sequence of int, optional
         Order sweep of the robust pipeline (``'2:60'``, ``'2:60:2'``, ``'4,6,8'``);
@@ -110,7 +132,9 @@ def identify(source: Any, config: Any = None, *, order: int | None = None,
     Raises
     ------
     FnsiLabError
-        Any problem with the input, the configuration or the identification, as one line.
+        Any problem with the input, the configuration or the identification, as one line;
+        a bad ``order``, ``max_order``, ``block_rows``, ``reduce_at`` or ``orders`` is a
+        :class:`~fnsi_lab.errors.ConfigError` naming it, before anything is read.
 
     Examples
     --------
@@ -129,14 +153,20 @@ def identify(source: Any, config: Any = None, *, order: int | None = None,
     """
     import time
 
+    from fnsi_lab.arguments import check_order_options
     from fnsi_lab.ident.pipeline import identify_request
     from fnsi_lab.ident.request import resolve_request
 
+    # the order rules of the command line, before anything is read
+    check_order_options(order=order, max_order=max_order, block_rows=block_rows,
+                        reduce_at=reduce_at, orders=orders)
     t0 = time.perf_counter()
     cfg = load_config(config) if config is not None else None
     inp = _as_input(source, samples_per_period or (cfg.samples_per_period if cfg else None))
     request = resolve_request(inp, cfg, order=order, orders=orders, reduce_at=reduce_at,
-                              max_order=max_order, block_rows=block_rows)
+                              max_order=max_order, block_rows=block_rows,
+                              driving_point=(_recorded_driving_point(source) if cfg is None
+                                             else None))
     load_s = time.perf_counter() - t0
     result = identify_request(inp, request, progress=progress)
     result.session.timings_s["load"] = load_s

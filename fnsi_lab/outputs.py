@@ -18,8 +18,9 @@ import contextlib
 import json
 import math
 import os
+import tempfile
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Iterable, Iterator
 
 import numpy as np
 
@@ -30,18 +31,22 @@ class OutputExistsError(FnsiLabError, FileExistsError):
     """The output file exists and ``--force`` was not given."""
 
 
-def check_output_path(path: str | os.PathLike[str], *, force: bool = False,
-                      option: str = "--out") -> Path:
-    """Validate an output path before any work is done.
+def check_output_path(path: str | os.PathLike[str] | None, *, force: bool = False,
+                      option: str = "--out",
+                      inputs: Iterable[str | os.PathLike[str] | None] = ()) -> Path:
+    """Validate an output path before any work is done: the one check every command uses.
 
     Parameters
     ----------
     path : path-like
         Where the output will be written.
     force : bool
-        Allow replacing an existing regular file.
+        Allow replacing an existing regular file (never one of ``inputs``).
     option : str
         Name of the CLI option, for the error message.
+    inputs : iterable of path-like
+        The command's input files (recordings, configs, results); an output that is one of
+        them is refused even with ``force`` (None entries are ignored).
 
     Returns
     -------
@@ -50,11 +55,13 @@ def check_output_path(path: str | os.PathLike[str], *, force: bool = False,
     Raises
     ------
     DataFileError
-        Empty path, a directory, or a parent folder that does not exist or is not writable.
+        Empty path, a directory, an input of the command, or a parent folder that does not
+        exist or cannot be written (tried with a temporary file: permission bits say
+        nothing for root or on a read-only file system).
     OutputExistsError
         The file exists and ``force`` is False.
     """
-    text = os.fspath(path)
+    text = "" if path is None else os.fspath(path)
     if not str(text).strip():
         raise DataFileError(f"{option} is empty (fix: give a file name)")
     p = Path(text)
@@ -63,13 +70,102 @@ def check_output_path(path: str | os.PathLike[str], *, force: bool = False,
     parent = p.parent if str(p.parent) else Path(".")
     if not parent.is_dir():
         raise DataFileError(f"{option} {p}: folder {parent} does not exist (fix: create it)")
-    if not os.access(parent, os.W_OK):
-        raise DataFileError(f"{option} {p}: folder {parent} is not writable "
-                            "(fix: choose another folder)")
+    _refuse_inputs(p, option, inputs)
     if p.exists() and not force:
         raise OutputExistsError(f"{option} {p}: file exists; nothing was written "
                                 "(fix: choose another name, or add --force to replace it)")
+    _require_writable(parent, f"{option} {p}: folder {parent}")
     return p
+
+
+def check_output_folder(path: str | os.PathLike[str] | None, *, option: str,
+                        parents: bool = False, create: bool = True,
+                        inputs: Iterable[str | os.PathLike[str] | None] = ()) -> Path:
+    """Validate a folder the command writes files into (before any work), and create it.
+
+    Parameters
+    ----------
+    path : path-like
+        The folder (``export --csv DIR``, ``batch --results DIR``).
+    option : str
+        Name of the CLI option, for the error message.
+    parents : bool
+        Create missing parent folders too (else the parent must exist).
+    create : bool
+        Create the folder now; False: only check that it could be (the caller creates it
+        when it writes, so a failed command leaves no empty folder).
+    inputs : iterable of path-like
+        Input files of the command; the folder may not be one of them.
+
+    Returns
+    -------
+    Path
+
+    Raises
+    ------
+    DataFileError
+        Empty path, an existing file, a folder that cannot be created or written.
+    """
+    text = "" if path is None else os.fspath(path)
+    if not str(text).strip():
+        raise DataFileError(f"{option} is empty (fix: give a folder name)")
+    p = Path(text)
+    if p.exists() and not p.is_dir():
+        raise DataFileError(f"{option} {p}: is a file, not a folder (fix: give a folder)")
+    _refuse_inputs(p, option, inputs)
+    if not p.is_dir():
+        parent = p.parent if str(p.parent) else Path(".")
+        if not parents and not parent.is_dir():
+            raise DataFileError(f"{option} {p}: folder {parent} does not exist "
+                                "(fix: create it)")
+        if not create:
+            while not parent.is_dir() and parent != parent.parent:
+                parent = parent.parent
+            _require_writable(parent, f"{option} {p}: cannot be created, folder {parent}")
+            return p
+        try:
+            p.mkdir(parents=parents, exist_ok=True)
+        except OSError as exc:
+            raise DataFileError(f"{option} {p}: cannot create the folder "
+                                f"({exc.strerror or exc}) (fix: choose a writable place)"
+                                ) from None
+    _require_writable(p, f"{option} {p}: folder")
+    return p
+
+
+def _refuse_inputs(p: Path, option: str,
+                   inputs: Iterable[str | os.PathLike[str] | None]) -> None:
+    """An output that is one of the command's inputs would destroy it: refused, --force
+    or not."""
+    for given in inputs:
+        if given is None or not str(os.fspath(given)).strip():
+            continue
+        other = Path(os.fspath(given))
+        try:
+            same = (os.path.samefile(p, other) if p.exists() and other.exists()
+                    else p.resolve() == other.resolve())
+        except OSError:
+            same = False
+        if same:
+            raise DataFileError(f"{option} {p}: is also an input of this command ({other}); "
+                                "nothing was written (fix: give the output another name)")
+
+
+def _require_writable(folder: Path, what: str) -> None:
+    """Create and remove a temporary file in ``folder``: the only test that holds for root,
+    read-only file systems and ACLs alike."""
+    if os.access(folder, os.W_OK):
+        try:
+            fd, probe = tempfile.mkstemp(prefix=".fnsi-lab-probe-", dir=folder)
+        except OSError:
+            pass
+        else:
+            os.close(fd)
+            with contextlib.suppress(OSError):
+                os.unlink(probe)
+            return
+    raise DataFileError(f"{what} is not writable (fix: choose another folder, or make it "
+                        "writable)")
 
 
 @contextlib.contextmanager

@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from fnsi_lab import arguments as opt
 from fnsi_lab.ident.errors import IdentError
 
 EXAMPLES = """\
@@ -24,8 +25,10 @@ examples:
 
 INPUT: an fnsi-lab MCAP recording, or .npz/.mat with u (n_samples, n_inputs),
 y (n_samples, n_outputs), fs, optional N, channels, input_channels (see docs/ident.md).
-Without --config: the excited band, and for simulated recordings the basis functions of
-the recording's truth. Gaps or exponents you do not know: 'clearances: auto' (or per side
+Without --config: the excited band, the driving point where the recording's channel
+table puts an output at the force's node and direction (else give it in the config:
+inputs: [{name: F, driving_point: X}]), and for simulated recordings the basis functions
+of the recording's truth. Gaps or exponents you do not know: 'clearances: auto' (or per side
 [low, high]) and 'exponent: auto' in the YAML are estimated from the data first, printed
 with their uncertainty and the model error against them (docs/ident.md).
 """
@@ -37,27 +40,27 @@ def add_ident_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", default=None, metavar="IDENT.yaml",
                         help="ident configuration (band, channels, nonlinearities; docs/ident.md); "
                              "a bare name such as smallsat39 picks a packaged example")
-    parser.add_argument("--order", type=int, default=None, metavar="N",
+    parser.add_argument("--order", type=opt.ORDER, default=None, metavar="N",
                         help="model order (overrides the config's 'order')")
-    parser.add_argument("--max-order", type=int, default=None, metavar="N",
+    parser.add_argument("--max-order", type=opt.MAX_ORDER, default=None, metavar="N",
                         help="largest order of the decomposition (default: the order)")
-    parser.add_argument("--block-rows", type=int, default=None, metavar="I",
+    parser.add_argument("--block-rows", type=opt.BLOCK_ROWS, default=None, metavar="I",
                         help="block rows i (default from outputs and max order)")
     parser.add_argument("--json", dest="json_out", default=None, metavar="OUT.json",
                         help="write the result as JSON ('-' for stdout)")
     parser.add_argument("--force", action="store_true", help="replace an existing --json file")
     parser.add_argument("--quiet", action="store_true", help="no summary on stdout")
-    parser.add_argument("--blas-threads", type=int, default=1, metavar="T",
+    parser.add_argument("--blas-threads", type=opt.BLAS_THREADS, default=1, metavar="T",
                         help="OpenBLAS threads (default 1: the many small solves of the order "
                              "sweep run 10-40x slower multi-threaded on a shared small machine)")
     g = parser.add_argument_group("robust pipeline (docs/robust.md)")
     g.add_argument("--auto", action="store_true",
                    help="choose the order (information criterion), classify poles (MDI + "
                         "stabilisation) and remove the spurious ones (model reduction)")
-    g.add_argument("--orders", default=None, metavar="FIRST:LAST",
+    g.add_argument("--orders", type=opt.ORDERS, default=None, metavar="FIRST:LAST",
                    help="order sweep of --auto: 2:60 (default, or the config's auto.orders), "
                         "2:60:2 or 4,6,8")
-    g.add_argument("--reduce-at", type=int, default=None, metavar="N",
+    g.add_argument("--reduce-at", type=opt.REDUCE_AT, default=None, metavar="N",
                    help="apply the MDI and the reduction at order N (default: the IC order)")
 
 
@@ -245,8 +248,13 @@ def run_ident(args: argparse.Namespace) -> int:
     import fnsi_lab
     from fnsi_lab.outputs import check_output_path, write_json
 
-    if args.json_out not in (None, "-"):
-        check_output_path(args.json_out, force=args.force, option="--json")
+    # every option before any work: their relations (--max-order >= --order), the output
+    opt.check_order_options(order=args.order, max_order=args.max_order,
+                            block_rows=args.block_rows, reduce_at=args.reduce_at, prefix="--")
+    if args.json_out != "-":  # '' is refused there, not taken for "no file"
+        if args.json_out is not None:
+            check_output_path(args.json_out, force=args.force, option="--json",
+                              inputs=[args.input, args.config])
     if getattr(args, "blas_threads", 0) and args.blas_threads > 0:
         from fnsi_lab.blas import limit_blas_threads
 

@@ -116,6 +116,10 @@ def input_from_arrays(arrays: Mapping[str, Any], path: str = "",
         if N is not None and N != n_file:
             raise IdentDataError(f"{path}: N={n_file} in the file but samples_per_period={N}")
         N = n_file
+    for key in ("u", "y"):  # a cast to float would keep the real part without a word
+        if np.iscomplexobj(arrays[key]):
+            raise IdentDataError(f"{path}: {key!r} holds complex numbers; time data are real "
+                                 f"(fix: save the measured time signals, not spectra)")
     try:
         u = np.asarray(arrays["u"], float)
         y = np.asarray(arrays["y"], float)

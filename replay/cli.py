@@ -18,6 +18,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
+from fnsi_lab import arguments as opt
 from fnsi_lab.errors import ConfigError
 from fnsi_lab.blas import limit_blas_threads
 from fnsi_lab.progress import announce_simulator_compile
@@ -98,17 +99,6 @@ def identification_failure(service: Any) -> str | None:
                 f"{st.blocks} blocks); record at least the transient periods plus one")
     return (f"only {st.steady_periods} steady-state period(s) of {st.periods} received; "
             "record more periods (excitation.periods) or fewer transient ones")
-
-
-def _positive_int(text: str) -> int:
-    """argparse type: an integer >= 1."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1 (0 would drop every block), got {value}")
-    return value
 
 
 class LiveRun:
@@ -317,8 +307,11 @@ def _service_for(channels: Any, rate: float, metadata: dict[str, Any], identify:
 def _cmd_replay(args: argparse.Namespace) -> int:
     from fnsi_lab.replay.source import ReplaySource
     from fnsi_lab.viewer.blueprint import blueprint
-    from fnsi_lab.viewer.cli import close_stream, open_stream
+    from fnsi_lab.viewer.cli import check_viewer_output, close_stream, open_stream
 
+    default_rrd = str(Path(args.file).with_suffix(".rrd"))
+    # the .rrd before anything is read or created
+    check_viewer_output(args, default_rrd, inputs=[args.file, args.ident])
     if args.blas_threads > 0:
         limit_blas_threads(args.blas_threads)
 
@@ -328,7 +321,6 @@ def _cmd_replay(args: argparse.Namespace) -> int:
         identify, what = make_identifier(args, source.metadata, source.channels)
         groups = sorted({c.quantity for c in source.channels},
                         key=lambda q: (q != "force", q))
-        default_rrd = str(Path(args.file).with_suffix(".rrd"))
         rec, sinks = open_stream(args, blueprint(groups), default_rrd=default_rrd)
         run = LiveRun(rec, source.channels, quiet=args.quiet, decimation=args.decimation,
                       file_path=Path(args.file))
@@ -386,7 +378,7 @@ def _cmd_live(args: argparse.Namespace) -> int:
     from fnsi_lab.daq.config import load_experiment
     from fnsi_lab.daq.registry import make_source
     from fnsi_lab.viewer.blueprint import blueprint
-    from fnsi_lab.viewer.cli import close_stream, open_stream
+    from fnsi_lab.viewer.cli import check_viewer_output, close_stream, open_stream
 
     if args.blas_threads > 0:
         limit_blas_threads(args.blas_threads)
@@ -394,9 +386,12 @@ def _cmd_live(args: argparse.Namespace) -> int:
     from fnsi_lab.outputs import check_output_path
 
     config = load_experiment(args.config)
+    inputs = [args.config, config.file, args.ident]
     output = check_output_path(config.output if args.out is None else args.out,
-                               force=args.force)
-    html_path = _report_path(args, output)
+                               force=args.force, inputs=inputs)
+    # every output before any work: the .rrd (also the default next to the recording)
+    rrd = check_viewer_output(args, str(output.with_suffix(".rrd")), inputs=[*inputs, output])
+    html_path = _report_path(args, output, inputs=[*inputs, output, rrd])
     pace = None if args.fast else args.speed
     announce_simulator_compile(config.source.kind, enabled=not args.quiet)
     source = make_source(config, pace=pace) if pace is not None else make_source(config)
@@ -443,15 +438,17 @@ def _cmd_live(args: argparse.Namespace) -> int:
     return 0
 
 
-def _report_path(args: argparse.Namespace, output: Path) -> Path | None:
-    """Where ``run`` writes its HTML report (next to the .rrd), checked before any work."""
+def _report_path(args: argparse.Namespace, output: Path, *,
+                 inputs: Any = ()) -> Path | None:
+    """Where ``run`` writes its HTML report (next to the .rrd), checked before any work;
+    ``--report ""`` is refused, not read as the default."""
     if not getattr(args, "html_report", False):
         return None
     from fnsi_lab.outputs import check_output_path
 
     rrd = Path(args.rrd) if getattr(args, "rrd", None) else output.with_suffix(".rrd")
-    return check_output_path(args.report or rrd.with_suffix(".html"), force=args.force,
-                             option="--report")
+    report = args.report if args.report is not None else rrd.with_suffix(".html")
+    return check_output_path(report, force=args.force, option="--report", inputs=inputs)
 
 
 def _write_html_report(path: Path, service: Any, recording: Path, *, force: bool) -> None:
@@ -486,30 +483,30 @@ def _common(p: argparse.ArgumentParser, harmonics: float = 1.0) -> None:
     g = p.add_argument_group("identification")
     g.add_argument("--ident", metavar="IDENT.yaml",
                    help="identification config (basis functions, band, options)")
-    g.add_argument("--orders", default=None, metavar="FIRST:LAST",
+    g.add_argument("--orders", type=opt.ORDERS, default=None, metavar="FIRST:LAST",
                    help=f"model orders of the sweep: FIRST:LAST, FIRST:LAST:STEP or a list "
                         "4,6,8 (default: the --ident file's auto.orders, else "
                         f"{DEFAULT_ORDERS[0]}:{DEFAULT_ORDERS[-1]}, as fnsi-lab ident)")
-    g.add_argument("--harmonics", type=float, default=harmonics, metavar="K",
+    g.add_argument("--harmonics", type=opt.HARMONICS, default=harmonics, metavar="K",
                    help="without --ident: process the lines up to K times the highest excited "
                         "frequency, where the nonlinear distortion lives (5: the paper's "
                         f"5-250 Hz for a 5-50 Hz multisine; default {harmonics:g})")
-    g.add_argument("--every", type=int, default=1, metavar="K",
+    g.add_argument("--every", type=opt.EVERY, default=1, metavar="K",
                    help="re-identify after every K new steady-state periods (default 1)")
     g.add_argument("--method", choices=("auto", "frf"), default="auto",
                    help="auto: robust FNSI pipeline (default); frf: nonparametric FRF only")
-    g.add_argument("--samples-per-period", type=int, metavar="N",
+    g.add_argument("--samples-per-period", type=opt.SAMPLES_PER_PERIOD, metavar="N",
                    help="period length when the recording has no excitation metadata")
-    g.add_argument("--steady-tolerance", type=float, metavar="TOL",
+    g.add_argument("--steady-tolerance", type=opt.STEADY_TOLERANCE, metavar="TOL",
                    help="also wait until two consecutive periods differ by less than TOL "
                         "(relative RMS) before identifying (default: only when the recording "
                         "does not give its transient periods, then 0.05)")
     add_viewer_arguments(p)
-    p.add_argument("--decimation", type=int, default=1, metavar="D",
+    p.add_argument("--decimation", type=opt.DECIMATION, default=1, metavar="D",
                    help="log every D-th sample of the signals to the viewer (default 1)")
-    p.add_argument("--web-wait", type=float, default=0.0, metavar="S",
+    p.add_argument("--web-wait", type=opt.WEB_WAIT, default=0.0, metavar="S",
                    help="with --serve-web, keep serving S seconds after the run")
-    p.add_argument("--blas-threads", type=int, default=1, metavar="T",
+    p.add_argument("--blas-threads", type=opt.BLAS_THREADS, default=1, metavar="T",
                    help="OpenBLAS threads (default 1: identification runs next to "
                         "acquisition and the viewer; more threads oversubscribe small machines)")
     p.add_argument("--quiet", action="store_true", help="no status line")
@@ -545,7 +542,7 @@ def register(subparsers: Any) -> None:
                "  fnsi-lab run --config lumped.yaml --rrd lumped.rrd    # packaged small model\n"
                "  fnsi-lab view smallsat.rrd                            # look at the result\n")
     _experiment_arguments(p)
-    p.add_argument("--queue-blocks", type=_positive_int, default=1 << 16, metavar="B",
+    p.add_argument("--queue-blocks", type=opt.QUEUE_BLOCKS, default=1 << 16, metavar="B",
                    help="capacity of the identification queue in blocks (drop-oldest)")
     p.add_argument("--report", metavar="REPORT.html",
                    help="HTML report of the identification (default: next to the .rrd, "
@@ -569,10 +566,10 @@ def register(subparsers: Any) -> None:
                "  fnsi-lab live --fast --spawn              # as fast as possible, native viewer\n"
                "  fnsi-lab live --config rig.yaml --ident rig-ident.yaml --serve-web\n")
     _experiment_arguments(p)
-    p.add_argument("--speed", type=float, default=1.0, metavar="X",
+    p.add_argument("--speed", type=opt.SPEED, default=1.0, metavar="X",
                    help="pace a simulated source at X times real time (default 1)")
     p.add_argument("--fast", action="store_true", help="simulated sources: as fast as possible")
-    p.add_argument("--queue-blocks", type=_positive_int, default=4096, metavar="B",
+    p.add_argument("--queue-blocks", type=opt.QUEUE_BLOCKS, default=4096, metavar="B",
                    help="capacity of the identification queue in blocks (drop-oldest)")
     _common(p)
     p.set_defaults(handler=_cmd_live)
@@ -589,11 +586,11 @@ def register(subparsers: Any) -> None:
                "  fnsi-lab replay smallsat.mcap --speed 10 --spawn\n"
                "  fnsi-lab replay growing.mcap --follow --connect   # a viewer already runs\n")
     p.add_argument("file", metavar="FILE.mcap")
-    p.add_argument("--speed", type=float, metavar="X",
+    p.add_argument("--speed", type=opt.SPEED, metavar="X",
                    help="recorded seconds per wall second (default: as fast as possible)")
     p.add_argument("--follow", action="store_true", help="follow a file still being written")
     p.add_argument("--force", action="store_true", help="replace an existing .rrd file")
-    p.add_argument("--follow-timeout", type=float, default=10.0, metavar="S",
+    p.add_argument("--follow-timeout", type=opt.FOLLOW_TIMEOUT, default=10.0, metavar="S",
                    help="with --follow, stop after S seconds without new data (default 10)")
     _common(p)
     p.set_defaults(handler=_cmd_replay)

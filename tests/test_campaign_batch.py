@@ -221,9 +221,10 @@ def test_inputs_config_and_outputs_are_checked_first(recordings, tmp_path, capsy
     # the order choice is part of the config hash
     assert make_spec(CONFIG, order=6).config_sha256 != make_spec(CONFIG, order=7).config_sha256
     assert make_spec(CONFIG, auto=True).config_sha256 != make_spec(CONFIG, order=6).config_sha256
-    assert main(["batch", str(good[0]), "--config", CONFIG, "--order", "6", "--out",
-                 str(tmp_path / "w.parquet"), "--workers", "0"]) == 2
-    assert "--workers" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as refused:  # argparse: the option's one rule
+        main(["batch", str(good[0]), "--config", CONFIG, "--order", "6", "--out",
+              str(tmp_path / "w.parquet"), "--workers", "0"])
+    assert refused.value.code == 2 and "--workers" in capsys.readouterr().err
     # a foreign file under --out is refused before any work
     foreign = tmp_path / "mine.parquet"
     foreign.write_text("not a campaign")

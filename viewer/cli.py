@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from fnsi_lab.arguments import CONNECT_URL
 from fnsi_lab.errors import DataFileError, FnsiLabError
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -47,6 +48,7 @@ def add_viewer_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--spawn", action="store_true",
                    help="start a native Rerun viewer (falls back to --rrd without a display)")
     g.add_argument("--connect", metavar="URL", nargs="?", const=DEFAULT_CONNECT_URL,
+                   type=CONNECT_URL,
                    help=f"stream to a running viewer (default URL {DEFAULT_CONNECT_URL})")
     g.add_argument("--serve-web", action="store_true",
                    help="serve the web viewer (open the printed http address in a browser)")
@@ -90,6 +92,16 @@ def check_port_free(host: str, port: int, option: str) -> None:
                           f"{option}{', or stop the other server' if busy else ''})") from None
 
 
+def check_server_ports(host: str, grpc_port: int, web_port: int) -> None:
+    """The two ports of ``--serve-web``: different, and free on ``host`` (before any work)."""
+    if grpc_port == web_port:
+        raise ViewerError(f"--web-port {web_port} is also the --grpc-port: the two servers "
+                          "need their own ports (fix: give different --web-port and "
+                          "--grpc-port)")
+    for port, option in ((grpc_port, "--grpc-port"), (web_port, "--web-port")):
+        check_port_free(host, port, option)
+
+
 def start_web_server(host: str, grpc_port: int, web_port: int,
                      timeout_s: float = 20.0) -> "subprocess.Popen[bytes]":
     """Start ``rerun --serve-web`` (gRPC proxy + web viewer) listening on ``host``.
@@ -101,8 +113,7 @@ def start_web_server(host: str, grpc_port: int, web_port: int,
     import atexit
     import socket
 
-    for port, option in ((grpc_port, "--grpc-port"), (web_port, "--web-port")):
-        check_port_free(host, port, option)
+    check_server_ports(host, grpc_port, web_port)
     exe = shutil.which("rerun")
     if exe is None:
         raise ViewerError("--serve-web needs the `rerun` executable of rerun-sdk on PATH "
@@ -172,6 +183,46 @@ class ViewerSinks:
         return bool(self.rrd or self.spawned or self.connected or self.web_url)
 
 
+def planned_rrd(args: argparse.Namespace, default_rrd: str | None = None) -> str | None:
+    """The .rrd file :func:`open_stream` will write for these options (None: no file).
+
+    ``--rrd ""`` is kept as given (the output check refuses it), never read as "the default".
+    """
+    rrd = getattr(args, "rrd", None)
+    if rrd is not None:
+        return rrd
+    spawn = bool(getattr(args, "spawn", False))
+    if not (spawn or getattr(args, "connect", None) or getattr(args, "serve_web", False)):
+        return default_rrd or "fnsi-lab.rrd"  # a stream without a sink: saved instead
+    if spawn and not has_display():  # no window: saved instead
+        return default_rrd or "fnsi-lab.rrd"
+    return None
+
+
+def check_viewer_output(args: argparse.Namespace, default_rrd: str | None = None, *,
+                        inputs: Any = ()) -> str | None:
+    """Check the .rrd output of these options before any work (empty, an input, exists
+    without --force, folder not writable: :func:`fnsi_lab.outputs.check_output_path`) and
+    the ``--serve-web`` ports (different, free)."""
+    from fnsi_lab.outputs import check_output_path
+
+    if getattr(args, "serve_web", False):
+        check_server_ports(getattr(args, "bind", "127.0.0.1") or "127.0.0.1",
+                           args.grpc_port, args.web_port)
+    rrd = planned_rrd(args, default_rrd)
+    if rrd is None:
+        return None
+    if str(rrd).strip() and not Path(rrd).parent.is_dir():
+        try:
+            Path(rrd).parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise DataFileError(f"--rrd {rrd}: cannot create its folder ({exc.strerror}) "
+                                "(fix: choose a writable place)") from None
+    check_output_path(rrd, force=getattr(args, "force", False), option="--rrd",
+                      inputs=inputs)
+    return rrd
+
+
 def open_stream(args: argparse.Namespace, blueprint: Any, *, recording_id: str | None = None,
                 default_rrd: str | None = None) -> tuple[rr.RecordingStream, ViewerSinks]:
     """Create the recording stream and attach the sinks the options ask for.
@@ -196,28 +247,21 @@ def open_stream(args: argparse.Namespace, blueprint: Any, *, recording_id: str |
 
     rec = rr.RecordingStream(APP_ID, recording_id=recording_id)
     sinks = ViewerSinks()
-    rrd = getattr(args, "rrd", None)
+    given = getattr(args, "rrd", None)
     spawn = bool(getattr(args, "spawn", False))
-    if not (rrd or spawn or getattr(args, "connect", None) or getattr(args, "serve_web", False)):
+    rrd = planned_rrd(args, default_rrd)
+    if given is None and not (spawn or getattr(args, "connect", None)
+                              or getattr(args, "serve_web", False)):
         # a stream without a sink keeps everything in memory: save instead
-        rrd = default_rrd or "fnsi-lab.rrd"
         sinks.notes.append(f"no viewer option given: saving to {rrd} (use --spawn, "
                            "--connect or --serve-web to watch live)")
     if spawn and not has_display():
-        rrd = rrd or default_rrd or "fnsi-lab.rrd"
         sinks.notes.append(f"no display: not spawning a viewer; saving to {rrd} "
                            f"(open it later with `rerun {rrd}` or `fnsi-lab view {rrd}`)")
         spawn = False
     sink_list: list[Any] = []
-    if rrd:
-        from fnsi_lab.outputs import check_output_path
-
-        try:
-            Path(rrd).parent.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise DataFileError(f"--rrd {rrd}: cannot create its folder ({exc.strerror}) "
-                                "(fix: choose a writable place)") from None
-        check_output_path(rrd, force=getattr(args, "force", False), option="--rrd")
+    if rrd is not None:
+        check_viewer_output(args, default_rrd)
         try:
             sink_list.append(rr.FileSink(str(rrd)))
         except Exception as exc:  # noqa: BLE001 - the SDK raises plain exceptions
@@ -225,7 +269,11 @@ def open_stream(args: argparse.Namespace, blueprint: Any, *, recording_id: str |
                                 "(fix: choose a writable place)") from None
         sinks.rrd = str(rrd)
     if getattr(args, "connect", None):
-        sink_list.append(rr.GrpcSink(args.connect))
+        try:
+            sink_list.append(rr.GrpcSink(args.connect))
+        except Exception as exc:  # noqa: BLE001 - the SDK raises RuntimeError for a bad URL
+            raise ViewerError(f"--connect {args.connect}: {exc} (fix: give "
+                              f"{DEFAULT_CONNECT_URL} or another viewer's address)") from None
         sinks.connected = args.connect
     if spawn:
         # spawn() starts the viewer and connects the stream to it; other sinks follow.
@@ -401,6 +449,7 @@ def register(subparsers: Any) -> None:
                    help="print the entities and the identification summary, open nothing")
     p.add_argument("--spawn", action="store_true", help="open it in the native Rerun viewer")
     p.add_argument("--connect", metavar="URL", nargs="?", const=DEFAULT_CONNECT_URL,
+                   type=CONNECT_URL,
                    help="send it to a running viewer")
     p.add_argument("--serve-web", action="store_true", help="serve it to a web browser")
     _add_server_arguments(p)

@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from fnsi_lab import arguments as opt
 from fnsi_lab.errors import ConfigError, DataFileError
 
 
@@ -134,8 +135,10 @@ def _cmd_report(args: argparse.Namespace) -> int:
     from fnsi_lab.outputs import check_output_path
 
     src = Path(args.source)
-    out = Path(args.out) if args.out else src.with_suffix(".html")
-    check_output_path(out, force=args.force)  # before a long identification
+    # --out "" is refused by the check, not read as "the default"
+    out = args.out if args.out is not None else src.with_suffix(".html")
+    out = check_output_path(out, force=args.force,  # before a long identification
+                            inputs=[args.source, args.config, args.recording])
     result, metadata = load_report_input(src, config=args.config, orders=args.orders,
                                          recording=args.recording, harmonics=args.harmonics,
                                          progress=not args.quiet)
@@ -174,9 +177,9 @@ def register(subparsers: Any) -> None:
     p.add_argument("--config", metavar="IDENT.yaml",
                    help="with a recording: identification config (default: the recording's "
                         "excited band and, for simulations, its truth's basis functions)")
-    p.add_argument("--orders", metavar="FIRST:LAST",
+    p.add_argument("--orders", type=opt.ORDERS, metavar="FIRST:LAST",
                    help="with a recording: order sweep (default the config's, else 2:60)")
-    p.add_argument("--harmonics", type=float, default=1.0, metavar="K",
+    p.add_argument("--harmonics", type=opt.HARMONICS, default=1.0, metavar="K",
                    help="with a recording and no config: process the lines up to K times the "
                         "highest excited frequency (5 as `fnsi-lab run`; default 1: the "
                         "excited band)")

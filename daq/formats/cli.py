@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from fnsi_lab import arguments as opt
 from fnsi_lab.daq.formats.importer import plan_import, read_lab_file, write_recording
 from fnsi_lab.outputs import check_output_path
 from fnsi_lab.progress import Progress
@@ -38,11 +39,11 @@ def register(subparsers) -> None:
     p.add_argument("--inputs", nargs="+", default=None, metavar="NAME",
                    help="input (force) channels; default: the channels the file marks as "
                         "forces")
-    p.add_argument("--fs", type=float, default=None, metavar="HZ",
+    p.add_argument("--fs", type=opt.SAMPLE_RATE, default=None, metavar="HZ",
                    help="sample rate, when the file does not give it (checked when it does)")
-    p.add_argument("--samples-per-period", type=int, default=None, metavar="N",
+    p.add_argument("--samples-per-period", type=opt.SAMPLES_PER_PERIOD, default=None, metavar="N",
                    help="multisine period in samples (else ident needs it in its config)")
-    p.add_argument("--transient-periods", type=int, default=None, metavar="K",
+    p.add_argument("--transient-periods", type=opt.TRANSIENT_PERIODS, default=None, metavar="K",
                    help="leading periods to drop before identification")
     p.add_argument("--output-quantity", default=None,
                    choices=("displacement", "velocity", "acceleration"),
@@ -56,7 +57,7 @@ def register(subparsers) -> None:
 
 def run_import(args: argparse.Namespace) -> int:
     """Handler of ``fnsi-lab import``; returns the exit status."""
-    out = check_output_path(args.out, force=args.force, option="--out")
+    out = check_output_path(args.out, force=args.force, option="--out", inputs=[args.file])
     table = read_lab_file(args.file)
     plan = plan_import(table, inputs=args.inputs, sample_rate_hz=args.fs,
                        samples_per_period=args.samples_per_period,

@@ -8,8 +8,8 @@ Layout (what spreadsheet and DAQ exports write)::
     0.000,0.51,1.2e-5,3.1e-6
     ...
 
-- delimiter ``,``, ``;``, tab or spaces, detected from the header line; with ``;`` a
-  decimal comma (``1,25``) is accepted;
+- delimiter ``,``, ``;``, tab or spaces, detected from the header line; with ``;`` or a
+  tab a decimal comma (``1,25``) is accepted;
 - a second header line of units (no number in it) is accepted instead of units in the
   names;
 - a first column named ``time``/``t`` (unit s or none) gives the sample rate and is not
@@ -38,9 +38,9 @@ def _split(line: str, delimiter: str | None) -> list[str]:
     return [c.strip().strip('"') for c in (line.split(delimiter) if delimiter else line.split())]
 
 
-def _is_number(text: str) -> bool:
+def _is_number(text: str, decimal_comma: bool = False) -> bool:
     try:
-        float(text)
+        float(text.replace(",", ".") if decimal_comma else text)
     except ValueError:
         return False
     return True
@@ -95,18 +95,24 @@ def read_csv(path: str | os.PathLike[str]) -> LabTable:
                            "must name the channels, e.g. 'time [s],F1 [N],X1 [m]')")
     head = lines[start]
     delimiter = next((d for d in ("\t", ";", ",") if d in head), None)
+    # decimal commas where the comma is not the delimiter (spreadsheet exports with ';')
+    comma = delimiter in (";", "\t")
     cells = _split(head, delimiter)
-    if all(_is_number(c) for c in cells if c):
+    if all(_is_number(c, comma) for c in cells if c):
         raise LabFileError(f"{p}: line {start + 1} holds numbers, not channel names (fix: add a "
                            "header line naming the channels, e.g. 'F1 [N],X1 [m]')")
     names, units = zip(*(_name_unit(c) for c in cells))
     names, units = list(names), list(units)
     body = start + 1
+    units_line = False
     if body < len(lines):
+        # a units line holds no number (read with the file's decimal separator: with
+        # decimal commas, the first data row is not a units line)
         second = _split(lines[body], delimiter)
-        if len(second) == len(names) and not any(_is_number(c) for c in second if c):
+        if len(second) == len(names) and not any(_is_number(c, comma) for c in second if c):
             units = [u or s for u, s in zip(units, second)]
             body += 1
+            units_line = True
     for j, n in enumerate(names):
         if not n:
             raise LabFileError(f"{p}: line {start + 1}: column {j + 1} has no name")
@@ -114,7 +120,7 @@ def read_csv(path: str | os.PathLike[str]) -> LabTable:
             raise LabFileError(f"{p}: line {start + 1}: two columns are named {n!r} (fix: give "
                                "each channel its own name)")
     rows = [ln for ln in lines[body:] if ln.strip() and not ln.lstrip().startswith("#")]
-    if delimiter == ";":
+    if comma:
         rows = [ln.replace(",", ".") for ln in rows]  # decimal comma of ';' exports
     try:
         data = np.loadtxt(rows, delimiter=delimiter, dtype=np.float64, ndmin=2)
@@ -123,13 +129,16 @@ def read_csv(path: str | os.PathLike[str]) -> LabTable:
         raise  # pragma: no cover - _raise_bad_cell always raises
     if data.shape[0] == 0:
         raise LabFileError(f"{p}: no data rows after the header")
+    if data.shape[0] != len(rows):  # every data line is a row, or the file is refused
+        raise LabFileError(f"{p}: {data.shape[0]} rows read from {len(rows)} data lines "
+                           "(fix: one row of numbers per line, no comment after the values)")
     if data.shape[1] != len(names):
         raise LabFileError(f"{p}: {data.shape[1]} columns of data but {len(names)} names in "
                            f"line {start + 1}")
     require_finite(data, names, path=p, kind="column")
     rate = header.get("sample_rate_hz")
     first = names[0].lower()
-    notes = []
+    notes = [f"line {start + 2} read as the channels' units"] if units_line else []
     if first in _TIME_NAMES and units[0] in ("s", ""):
         if data.shape[0] >= 2:
             time_rate = rate_from_times(data[:, 0], path=p, field=f"column {names[0]!r}")
@@ -173,8 +182,7 @@ def _raise_bad_cell(path: str, lines: list[str], body: int, delimiter: str | Non
             raise LabFileError(f"{path}: line {i + 1} has {len(cells)} values for "
                                f"{len(names)} columns")
         for name, cell in zip(names, cells):
-            value = cell.replace(",", ".") if delimiter == ";" else cell
-            if not _is_number(value):
+            if not _is_number(cell, delimiter in (";", "\t")):
                 raise LabFileError(f"{path}: line {i + 1}, column {name!r}: {cell!r} is not a "
                                    "number")
     raise LabFileError(f"{path}: the data cannot be read as numbers")

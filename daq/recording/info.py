@@ -33,7 +33,8 @@ def recording_info(path: str | os.PathLike[str]) -> dict[str, Any]:
         ``excitation``, ``experiment``, ``truth``, ``source``, ``attachments``
         [{name, media_type, size}], ``metadata_keys``, ``software_version``, ``library``,
         ``trigger`` (software trigger settings or None), ``clock_check``
-        (:meth:`daq.periodicity.ClockCheck.to_dict`, None without periods).
+        (:meth:`daq.periodicity.ClockCheck.to_dict`, None without periods), ``notes``
+        (what could not be checked: a file another writer made without CRCs).
 
     Raises
     ------
@@ -99,6 +100,7 @@ def recording_info(path: str | os.PathLike[str]) -> dict[str, Any]:
             "trigger": rec.metadata.get("trigger"),
             "clock_check": _clock_check(rec) if n else None,
         }
+        info["notes"] = list(rec.notes)  # what could not be checked (no CRCs)
     return info
 
 
@@ -181,4 +183,5 @@ def format_info(info: dict[str, Any]) -> str:
         lines.append(f"truth: {keys}")
     lines.append(f"metadata: {', '.join(info.get('metadata_keys') or [])}")
     lines.append(f"fnsi-lab version: {info.get('software_version')}")
+    lines += [f"note: {note}" for note in info.get("notes") or ()]
     return "\n".join(lines)

@@ -83,9 +83,15 @@ class Recording:
         self._reader: SeekingReader = make_reader(  # type: ignore[assignment]
             stream, validate_crcs=validate_crcs)
         self._summary = self._load_summary()
-        if validate_crcs:
-            self._check_summary_crc()
+        #: What the reader could not check, for ``info`` and the identification's notes
+        #: (a file from another writer without CRCs).
+        self.notes: list[str] = []
+        self._metadata_crcs = 0
+        self.library = self._header_library()
+        summary_crc = self._check_summary_crc() if validate_crcs else True
         self.metadata = self._load_metadata()
+        if not summary_crc:  # judged once the metadata records said who wrote the file
+            self._zero_crc("footer (the summary section's CRC)")
         self._samples = self._find_samples_channel()
         self.channels = self._load_channels()
         self.sample_rate_hz = self._load_rate()
@@ -106,14 +112,42 @@ class Recording:
                 f"{self.path} {recovered_name(self.path)}` to re-index it")
         return summary
 
+    def _header_library(self) -> str:
+        """The MCAP header's ``library`` text ('' when the header does not parse)."""
+        try:
+            return str(self._reader.get_header().library)
+        except Exception:  # noqa: BLE001 - a damaged header: the other checks still run
+            return ""
+
+    @property
+    def written_by_fnsi_lab(self) -> bool:
+        """True when the header (or the CRC-carrying metadata records) say fnsi-lab wrote
+        the file: it then always wrote every CRC, so a zero CRC field is damage."""
+        return self.library.startswith(topics.LIBRARY_PREFIX) or self._metadata_crcs > 0
+
+    def _zero_crc(self, what: str) -> None:
+        """A CRC field of 0 ('not computed' in MCAP): damage in an fnsi-lab file, a note
+        (nothing could be checked) in another writer's."""
+        if self.written_by_fnsi_lab:
+            raise self.damaged_error(f"damaged {what}: its CRC field is zero (fnsi-lab always "
+                                     "writes one)")
+        note = (f"written by {self.library or 'an unknown writer'} without CRCs: damage "
+                "cannot be detected in this file")
+        if note not in self.notes:
+            self.notes.append(note)
+
     def damaged_error(self, what: str) -> DamagedRecordingError:
-        """The one-line error for a damaged part ``what`` of this file (with the fix)."""
-        return DamagedRecordingError(
+        """The one-line error for a damaged part ``what`` of this file (with the fix);
+        its ``what`` attribute holds ``what``."""
+        error = DamagedRecordingError(
             f"{self.path}: {what}; run `fnsi-lab recover {self.path} {recovered_name(self.path)}` "
             "to salvage every intact chunk (or add --no-crc-check to read it as it is)")
+        error.what = what
+        return error
 
-    def _check_summary_crc(self) -> None:
-        """Check the footer's CRC of the summary section (schemas, channels, indexes)."""
+    def _check_summary_crc(self) -> bool:
+        """Check the footer's CRC of the summary section (schemas, channels, indexes);
+        False when the footer carries none (a zero CRC field)."""
         size = self._stream.seek(0, io.SEEK_END)
         footer_at = size - len(MCAP_MAGIC) - 29  # opcode, length, two offsets, CRC
         self._stream.seek(footer_at)
@@ -121,8 +155,10 @@ class Recording:
         if len(raw) != 29 or raw[0] != Opcode.FOOTER:
             raise self.damaged_error("damaged footer")
         summary_start, _, crc = struct.unpack_from("<QQI", raw, 9)
-        if crc == 0 or summary_start == 0:
-            return  # the writer did not compute it
+        if summary_start == 0:
+            return True  # no summary section: reported when it is needed
+        if crc == 0:
+            return False
         if not 0 < summary_start <= footer_at:
             raise self.damaged_error("damaged footer (summary offset out of range)")
         self._stream.seek(summary_start)
@@ -130,6 +166,7 @@ class Recording:
         if zlib.crc32(raw[:25], zlib.crc32(body)) != crc:
             raise self.damaged_error(f"damaged summary section (bytes {summary_start}-{footer_at}: "
                                 "CRC mismatch; channel table, statistics or chunk index)")
+        return True
 
     def _chunk_label(self, ci: Any) -> str:
         """``chunk 12 of 49 (bytes a-b, 26.0-27.0 s)`` for error messages."""
@@ -151,8 +188,11 @@ class Recording:
             raw = _decompress(chunk)
         except (McapError, ValueError, OSError, EOFError, zlib.error, struct.error) as exc:
             raise self.damaged_error(f"damaged {self._chunk_label(ci)}: {exc}") from None
-        if (self.validate_crcs and chunk.uncompressed_crc
-                and zlib.crc32(raw) != chunk.uncompressed_crc):
+        if not self.validate_crcs:
+            return raw
+        if not chunk.uncompressed_crc:
+            self._zero_crc(self._chunk_label(ci))
+        elif zlib.crc32(raw) != chunk.uncompressed_crc:
             raise self.damaged_error(f"damaged {self._chunk_label(ci)}: CRC mismatch")
         return raw
 
@@ -165,8 +205,8 @@ class Recording:
         for ci in sorted(self._summary.chunk_indexes, key=lambda c: c.chunk_start_offset):
             try:
                 self._read_chunk(ci)
-            except DamagedRecordingError:
-                problems.append(f"damaged {self._chunk_label(ci)}")
+            except DamagedRecordingError as exc:
+                problems.append(getattr(exc, "what", f"damaged {self._chunk_label(ci)}"))
         for ai in self._summary.attachment_indexes:
             if not self._attachment_intact(ai):
                 problems.append(f"damaged attachment {ai.name!r} (bytes {ai.offset}-"
@@ -180,7 +220,12 @@ class Recording:
         if len(raw) != ai.length or len(raw) < 13 or raw[0] != Opcode.ATTACHMENT:
             return False
         crc = int.from_bytes(raw[-4:], "little")
-        return crc == 0 or zlib.crc32(raw[9:-4]) == crc
+        if crc == 0:
+            if self.written_by_fnsi_lab:
+                return False  # fnsi-lab always writes it
+            self._zero_crc(f"attachment {ai.name!r}")
+            return True
+        return zlib.crc32(raw[9:-4]) == crc
 
     def _find_samples_channel(self) -> Channel:
         found = [c for c in self._summary.channels.values() if c.topic == topics.TOPIC_SAMPLES]
@@ -234,6 +279,7 @@ class Recording:
             if isinstance(exc, RecordingError):
                 raise
             raise self.damaged_error(f"unreadable metadata ({type(exc).__name__}: {exc})") from None
+        self._metadata_crcs = with_crc
         if self.validate_crcs and with_crc and without_crc:
             # a writer that adds CRCs adds them to every record: one is missing its key
             raise self.damaged_error("damaged metadata record (its CRC key is gone)")
@@ -793,6 +839,7 @@ def _read_periodic(rec: Recording, samples_per_period: int | None,
         raise RecordingError(f"{rec.path}: data are not periodic with N={n} (relative "
                              f"difference of the last two periods {err:.3g} > {max_error:g}); "
                              "check samples_per_period or record more transient periods")
+    notes += [note for note in rec.notes if note not in notes]  # e.g. no CRCs to check
     is_in = np.array([c.is_force for c in rec.channels], dtype=bool)
     lines = _excited_lines(exc, n, rec.sample_rate_hz)
     return PeriodicRecord(

@@ -87,6 +87,9 @@ class RecoverReport:
     seconds_skipped: float = 0.0
     #: Seconds of signal in the recovered sample blocks.
     seconds_recovered: float = 0.0
+    #: Chunks copied without a CRC to check (another writer's file; fnsi-lab always
+    #: writes one, so in its own files a zero CRC is damage and the chunk is skipped).
+    unchecked_chunks: int = 0
 
     @property
     def bytes_skipped(self) -> int:
@@ -125,6 +128,9 @@ class RecoverReport:
             lines.append(f"  last sample block at log time {self.last_log_time_ns} ns")
         if self.skipped_messages:
             lines.append(f"  {self.skipped_messages} messages skipped (channel record lost)")
+        if self.unchecked_chunks:
+            lines.append(f"  note: {self.unchecked_chunks} chunk(s) carry no CRC (written "
+                         "without CRCs by another program): copied unchecked")
         return "\n".join(lines)
 
     def to_dict(self) -> dict[str, Any]:
@@ -341,6 +347,8 @@ def _intact_at(data: Any, i: int, size: int) -> bool:
         found = _chunk_at(data, i, size)
         if found is None:
             return False
+        if not found[0].uncompressed_crc:  # no CRC proves nothing
+            return False
         try:
             breakup_chunk(found[0], validate_crc=True)
             return True
@@ -403,6 +411,10 @@ def _copy(src: Path, data: Any, out_stream: IO[bytes], out_name: str,
     damaged: list[tuple[int, int, str]] = []
     complete = False
     header_seen = False
+    # fnsi-lab always writes CRCs: in its files a zero CRC field is damage. Known from the
+    # header's library, or from metadata records carrying their crc32 (a damaged header).
+    fnsi_written = False
+    unchecked = 0
     stop_reason = "file ends without footer"
     pos = len(MCAP_MAGIC)
     good_end = pos
@@ -420,6 +432,7 @@ def _copy(src: Path, data: Any, out_stream: IO[bytes], out_name: str,
             stream = ReadDataStream(_BytesReader(content))
             if opcode == Opcode.HEADER:
                 header = Header.read(stream)
+                fnsi_written |= header.library.startswith(topics.LIBRARY_PREFIX)
                 if not header_seen:
                     writer.start(profile=header.profile, library=header.library)
                     header_seen = True
@@ -429,6 +442,10 @@ def _copy(src: Path, data: Any, out_stream: IO[bytes], out_name: str,
                 if _chunk_at(data, pos, size) is None:
                     raise McapError("inconsistent chunk header")
                 chunk = Chunk.read(stream)
+                if not chunk.uncompressed_crc:
+                    if fnsi_written:
+                        raise McapError("its CRC field is zero (fnsi-lab always writes one)")
+                    unchecked += 1
                 # Decompress and check the CRC before copying anything of the chunk.
                 inner = breakup_chunk(chunk, validate_crc=True)
                 for r in inner:
@@ -453,12 +470,16 @@ def _copy(src: Path, data: Any, out_stream: IO[bytes], out_name: str,
                 text = record.metadata.get(topics.METADATA_JSON_KEY)
                 if crc is not None and (text is None or topics.metadata_crc(record.name, text) != crc):
                     raise McapError(f"metadata record {record.name!r}: CRC mismatch")
+                fnsi_written |= crc is not None
                 writer.add_metadata(record.name, dict(record.metadata))
                 metadata += 1
             elif opcode == Opcode.ATTACHMENT:
                 crc = int.from_bytes(content[-4:], "little")
                 if crc and zlib.crc32(content[:-4]) != crc:
                     raise McapError("attachment CRC mismatch")
+                if not crc and fnsi_written:
+                    raise McapError("attachment: its CRC field is zero (fnsi-lab always "
+                                    "writes one)")
                 record = Attachment.read(stream)
                 writer.add_attachment(record.create_time, record.log_time, record.name,
                                       record.media_type, record.data)
@@ -514,7 +535,7 @@ def _copy(src: Path, data: Any, out_stream: IO[bytes], out_name: str,
                          file_size=file_size, stop_reason=stop_reason,
                          last_log_time_ns=copier.last_sample_ns, skipped_messages=copier.skipped,
                          damaged=tuple(damaged), seconds_skipped=missing_s,
-                         seconds_recovered=have_s)
+                         seconds_recovered=have_s, unchecked_chunks=unchecked)
 
 
 def _record_name(opcode: int) -> str:

@@ -162,7 +162,11 @@ def make_spec(config: str, *, order: int | None = None, auto: bool = False,
         Invalid config, or no order chosen (same messages as ``fnsi-lab ident``).
     """
     import fnsi_lab
+    from fnsi_lab.arguments import check_order_options
 
+    # the same rules as `fnsi-lab ident`, before any input is read or any table written
+    checked = check_order_options(order=order, orders=orders)
+    order = checked["order"]
     cfg = fnsi_lab.load_config(config)
     path = Path(cfg.file).resolve()
     if not auto:
@@ -195,6 +199,37 @@ def plan_inputs(inputs: Sequence[Path], results_dir: Path) -> list[PlannedInput]
         name = p.stem if stems[p.stem] == 1 else f"{p.stem}-{sha[:8]}"
         planned.append(PlannedInput(path=p, sha256=sha, result_path=results_dir / f"{name}.json"))
     return planned
+
+
+def check_result_paths(planned: Sequence[PlannedInput], *, force: bool = False) -> None:
+    """Refuse (before any work) a result path holding a file this command did not write.
+
+    A JSON result of an earlier ``fnsi-lab batch`` (it carries the ``campaign``
+    section) is this command's own state, replaced when its input or config changed, like
+    the campaign table; any other file (a user's ``lumped.json``) needs ``force``.
+
+    Raises
+    ------
+    OutputExistsError
+        Naming the file, its input and the fix.
+    """
+    from fnsi_lab.outputs import OutputExistsError
+
+    if force:
+        return
+    for item in planned:
+        if not item.result_path.exists():
+            continue
+        try:
+            with open(item.result_path, encoding="utf-8") as fh:
+                ours = isinstance(json.load(fh).get(CAMPAIGN_KEY), dict)
+        except (OSError, ValueError, AttributeError):
+            ours = False
+        if not ours:
+            raise OutputExistsError(
+                f"--results {item.result_path}: file exists and is not a result of fnsi-lab "
+                f"batch (the result of {item.path} goes there); nothing was written (fix: "
+                "give another --results folder, or add --force to replace it)")
 
 
 def previous_result(item: PlannedInput, spec: BatchSpec) -> dict | None:

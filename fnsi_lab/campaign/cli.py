@@ -8,6 +8,7 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
+from fnsi_lab import arguments as opt
 from fnsi_lab.errors import ConfigError
 from fnsi_lab.progress import Progress
 
@@ -32,24 +33,27 @@ examples:
 
 
 def _batch(args: argparse.Namespace) -> int:
-    from fnsi_lab.campaign.batch import (dask_client, expand_inputs, find_done, make_spec,
-                                         plan_inputs, run_batch)
+    from fnsi_lab.campaign.batch import (check_result_paths, dask_client, expand_inputs,
+                                         find_done, make_spec, plan_inputs, run_batch)
     from fnsi_lab.campaign.table import is_campaign_table, read_table, write_table
-    from fnsi_lab.outputs import check_output_path
+    from fnsi_lab.outputs import check_output_folder, check_output_path
 
     if args.workers is not None and args.workers < 1:
         raise ConfigError(f"{args.workers} workers", field="--workers", fix="give N >= 1")
-    out = Path(args.out)
-    # a campaign table is this command's own state (rewritten on resume); anything else
-    # under that name is the user's and needs --force
-    check_output_path(out, force=args.force or is_campaign_table(out), option="--out")
     spec = replace(make_spec(args.config, order=args.order, auto=args.auto, orders=args.orders),
                    crc_check=not getattr(args, "no_crc_check", False))
     inputs = expand_inputs(args.inputs)
-    results_dir = Path(args.results) if args.results else out.parent
-    results_dir.mkdir(parents=True, exist_ok=True)
+    out = Path(args.out)
+    # a campaign table is this command's own state (rewritten on resume); anything else
+    # under that name is the user's and needs --force
+    check_output_path(out, force=args.force or is_campaign_table(out), option="--out",
+                      inputs=[spec.config, *inputs])
+    # --results "" is refused, not read as "the folder of --out"
+    results_dir = check_output_folder(args.results if args.results is not None else out.parent,
+                                      option="--results", parents=True)
     t0 = time.perf_counter()
     planned = plan_inputs(inputs, results_dir)
+    check_result_paths(planned, force=args.force)  # a user's file is never overwritten
     previous_rows = {}
     if out.exists() and is_campaign_table(out):
         rows, settings = read_table(out)
@@ -85,9 +89,11 @@ def _campaign(args: argparse.Namespace) -> int:
     from fnsi_lab.campaign.table import read_table
     from fnsi_lab.outputs import check_output_path, write_json
 
+    written = [args.table]
     for target, option in ((args.rrd, "--rrd"), (args.json, "--json"), (args.html, "--html")):
-        if target not in (None, "-"):
-            check_output_path(target, force=args.force, option=option)
+        if target not in (None, "-"):  # '' is refused there
+            check_output_path(target, force=args.force, option=option, inputs=written)
+            written.append(target)
     rows, settings = read_table(args.table)
     comparison = compare_campaign(rows, output=args.output,
                                   driving_points=_driving_points(settings.get("config")),
@@ -147,9 +153,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     how.add_argument("--auto", action="store_true",
                      help="robust automatic pipeline (order by information criterion, "
                           "spurious poles removed)")
-    how.add_argument("--order", type=int, metavar="N",
+    how.add_argument("--order", type=opt.ORDER, metavar="N",
                      help="fixed model order (default: the config's 'order')")
-    p.add_argument("--orders", metavar="FIRST:LAST",
+    p.add_argument("--orders", type=opt.ORDERS, metavar="FIRST:LAST",
                    help="order sweep of --auto (default: the config's, else 2:60)")
     p.add_argument("--out", required=True, metavar="CAMPAIGN.parquet", help="the campaign table")
     p.add_argument("--results", metavar="DIR",
@@ -158,11 +164,12 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="'local' (default): a local Dask cluster of worker processes; "
                         "'serial': no Dask, one input after the other in this process; or "
                         "the address of a running 'dask scheduler' (tcp://host:8786)")
-    p.add_argument("--workers", type=int, metavar="N",
+    p.add_argument("--workers", type=opt.WORKERS, metavar="N",
                    help="local cluster: worker processes (default: CPU count); running "
                         "scheduler: wait for N workers (default 1)")
     p.add_argument("--force", action="store_true",
-                   help="replace an --out file that is not a campaign table")
+                   help="replace an --out file that is not a campaign table, and files in "
+                        "the results folder that are not this command's results")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(handler=_batch)
 
@@ -184,10 +191,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", metavar="OUT.json", help="the comparison as JSON ('-' for stdout)")
     p.add_argument("--output", metavar="CHANNEL",
                    help="output channel of the FRF overlay (default: the driving point)")
-    p.add_argument("--max-relative-spread", type=float, default=0.1, metavar="R",
+    p.add_argument("--max-relative-spread", type=opt.RELATIVE_SPREAD, default=0.1, metavar="R",
                    help="a coefficient whose spread exceeds R times |mean| is flagged "
                         "(default 0.1)")
-    p.add_argument("--min-contact", type=float, default=0.001, metavar="F",
+    p.add_argument("--min-contact", type=opt.CONTACT_FRACTION, default=0.001, metavar="F",
                    help="a coefficient whose stop is closed less than this fraction of the "
                         "time is flagged (default 0.001; simulated recordings carry it)")
     p.add_argument("--force", action="store_true", help="replace existing output files")

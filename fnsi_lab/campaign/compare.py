@@ -30,6 +30,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from fnsi_lab.campaign.table import coefficient_names, physical_modes
+from fnsi_lab.errors import ConfigError, DataFileError
 
 #: Rows with these statuses carry a result.
 _DONE = ("ok", "skipped")
@@ -170,6 +171,23 @@ def match_modes(reference_hz: Sequence[float], frequencies_hz: Sequence[float]) 
 
 
 # ---------------------------------------------------------------------------- comparison
+def _read_result(path: str, run: Any = None) -> dict[str, Any]:
+    """One run's result JSON; a missing or damaged file is one line naming it and the fix."""
+    fix = (f"run `fnsi-lab batch` again with --force to identify {run or 'that input'} anew"
+           " (or delete the file)")
+    try:
+        result = json.loads(Path(path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise DataFileError(f"{path}: result of {run or 'a run'} not found (fix: {fix})") from None
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        reason = (str(exc).splitlines() or [type(exc).__name__])[0]
+        raise DataFileError(f"{path}: not a readable result JSON ({reason}) (fix: {fix})"
+                            ) from None
+    if not isinstance(result, dict):
+        raise DataFileError(f"{path}: not an identification result (fix: {fix})")
+    return result
+
+
 def compare_campaign(rows: Sequence[Mapping[str, Any]], *, output: str | None = None,
                      driving_points: Mapping[str, str] | None = None,
                      max_relative_spread: float = 0.1, min_contact: float = 0.001,
@@ -205,7 +223,7 @@ def compare_campaign(rows: Sequence[Mapping[str, Any]], *, output: str | None = 
     loaded = dict(results or {})
     for r in done:
         if r["result"] not in loaded:
-            loaded[r["result"]] = json.loads(Path(r["result"]).read_text(encoding="utf-8"))
+            loaded[r["result"]] = _read_result(r["result"], r.get("file"))
     levels = _sort_levels([_level_key(r.get("force_rms")) for r in rows])
     warnings: list[str] = []
 
@@ -274,6 +292,7 @@ def compare_campaign(rows: Sequence[Mapping[str, Any]], *, output: str | None = 
     frfs: list[RunFRF] = []
     inputs: list[str] = []
     chosen = output
+    found_output = False
     for r in done:
         frf = loaded[r["result"]].get("frf") or {}
         if not frf.get("underlying_linear"):
@@ -288,10 +307,17 @@ def compare_campaign(rows: Sequence[Mapping[str, Any]], *, output: str | None = 
                             f"{', '.join(outputs[:8])}{'...' if len(outputs) > 8 else ''})")
             continue
         j = outputs.index(chosen)
+        found_output = True
         h = (np.asarray(frf["underlying_linear"]["re"], float)
              + 1j * np.asarray(frf["underlying_linear"]["im"], float))[:, j, :]
         frfs.append(RunFRF(file=str(r["file"]), level=_level_key(r.get("force_rms")),
                            frequency_hz=np.asarray(frf["frequency_hz"], float), frf=h))
+    if output is not None and not found_output and any(
+            (loaded[r["result"]].get("frf") or {}).get("underlying_linear") for r in done):
+        raise ConfigError(f"{output!r} is not an output of any run's FRF (outputs: "
+                          f"{', '.join(outputs[:8])}{' ...' if len(outputs) > 8 else ''})",
+                          field="--output", fix="give one of those outputs, or omit --output "
+                                                "for the driving point")
     _frf_deviations(frfs)
     return Comparison(levels=levels, coefficients=coefficients, frequencies=frequencies,
                       damping=damping, reference_frequencies_hz=reference_hz, frfs=frfs,

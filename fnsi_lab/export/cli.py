@@ -12,7 +12,7 @@ from fnsi_lab.export.dofs import (assign_dofs, channel_table_mapping, parse_mapp
 from fnsi_lab.export.result import FRF_KINDS, ResultArrays, load_result
 from fnsi_lab.export.tables import CSV_FILES, write_tables
 from fnsi_lab.export.uff import uff_text
-from fnsi_lab.outputs import atomic_output, check_output_path
+from fnsi_lab.outputs import atomic_output, check_output_folder, check_output_path
 
 EXAMPLES = """\
 examples:
@@ -92,22 +92,21 @@ def recorded_dofs(result: ResultArrays, recording: str | None) -> dict[str, tupl
 
 def run_export(args: argparse.Namespace) -> int:
     """Handler of ``fnsi-lab export``; returns the exit status."""
-    if not args.uff and not args.csv:
+    if args.uff is None and args.csv is None:
         raise ConfigError("nothing to write", field="--uff/--csv",
                           fix="give --uff OUT.uff and/or --csv DIR")
     kinds = _frf_kinds(args.frf)
-    uff_path = check_output_path(args.uff, force=args.force, option="--uff") if args.uff else None
+    inputs = [args.result, args.map_file, args.recording]
+    uff_path = (check_output_path(args.uff, force=args.force, option="--uff", inputs=inputs)
+                if args.uff is not None else None)  # --uff "" is refused, not ignored
     csv_dir = None
-    if args.csv:
-        csv_dir = Path(args.csv)
-        if csv_dir.exists() and not csv_dir.is_dir():
-            raise DataFileError(f"--csv {csv_dir}: is a file, not a folder (fix: give a folder)")
+    if args.csv is not None:
+        # the folder (created when the tables are written) and every table in it
+        csv_dir = check_output_folder(args.csv, option="--csv", create=False, inputs=inputs)
         for name in CSV_FILES:
             if csv_dir.is_dir():
-                check_output_path(csv_dir / name, force=args.force, option="--csv")
-        if not csv_dir.parent.is_dir():
-            raise DataFileError(f"--csv {csv_dir}: folder {csv_dir.parent} does not exist "
-                                "(fix: create it)")
+                check_output_path(csv_dir / name, force=args.force, option="--csv",
+                                  inputs=[*inputs, uff_path])
     result = load_result(args.result)
     explicit = read_mapping_file(args.map_file) if args.map_file else {}
     explicit.update(parse_mapping(args.map))
@@ -137,7 +136,12 @@ def run_export(args: argparse.Namespace) -> int:
             fh.write(text)
     written = []
     if csv_dir is not None:
-        csv_dir.mkdir(exist_ok=True)
+        try:
+            csv_dir.mkdir(exist_ok=True)
+        except OSError as exc:
+            raise DataFileError(f"--csv {csv_dir}: cannot create the folder "
+                                f"({exc.strerror or exc}) (fix: choose a writable place)"
+                                ) from None
         written = write_tables(csv_dir, result, out_dofs)
     if not args.quiet:
         if uff_path is not None:

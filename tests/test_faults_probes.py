@@ -1,0 +1,277 @@
+"""The second reliability sweep's probe categories (issue 31), kept so CI catches a regression.
+
+Same rule as tests/test_faults.py: every probe ends with the data back bit for bit, or one
+line naming the problem and the fix with the exit status of docs/cli.md (0, 1, 2, 130),
+before any work when the problem is in the command line. Never a traceback, never silently
+wrong or lost data, never an overwritten file. Real files, real CLI runs.
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.opcode import Opcode
+
+from fnsi_lab.cli import main
+from fnsi_lab.daq.recording import open_recording, recover
+
+from test_faults import _experiment, _one_line_error, _records
+
+
+def _cli(*args: str, timeout: float = 120, **kw) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "fnsi_lab", *args], capture_output=True,
+                          text=True, timeout=timeout, **kw)
+
+
+@pytest.fixture
+def multi_chunk(write_recording):
+    """A finished recording with ~20 chunks and an attachment."""
+    return write_recording(n_periods=8, chunk_size=2_000, noise=1e-3,
+                           attachments=[("notes.txt", "text/plain", b"lab notes\n")])
+
+
+def _chunks(data: bytes) -> list[tuple[int, int]]:
+    return [(s, e) for op, s, e in _records(data) if op == Opcode.CHUNK]
+
+
+def _zero_crc(data: bytearray, start: int) -> None:
+    """Set the chunk record's uncompressed_crc field (after opcode, length and three u64)
+    to 0, MCAP's 'no CRC'."""
+    data[start + 33:start + 37] = b"\0\0\0\0"
+
+
+# ---------------------------------------------------------------------------- zero CRC
+def test_a_zero_crc_in_an_fnsi_lab_recording_is_damage(write_recording, tmp_path, capsys):
+    """Issue 31 item 1: a chunk whose CRC field is 0 and whose data were changed was read
+    as intact (MCAP's 'no CRC'): info, ident and recover must refuse or skip it."""
+    # uncompressed chunks: the changed bytes still decode (as zstd data without a frame
+    # checksum did in the issue's probe), only the CRC can tell
+    path, blocks = write_recording(n_periods=8, chunk_size=2_000, noise=1e-3,
+                                   compression="none")
+    data = bytearray(path.read_bytes())
+    chunks = _chunks(bytes(data))
+    k = len(chunks) // 2
+    s, e = chunks[k]
+    _zero_crc(data, s)
+    data[e - 12:e - 4] = bytes(b ^ 0xFF for b in data[e - 12:e - 4])  # 8 bytes of its data
+    path.write_bytes(bytes(data))
+    assert main(["info", str(path)]) == 2
+    line = _one_line_error(capsys.readouterr().err)
+    assert f"damaged chunk {k + 1} of {len(chunks)}" in line and "CRC field is zero" in line
+    assert f"fnsi-lab recover {path}" in line
+    ident = tmp_path / "band.yaml"
+    ident.write_text("band_hz: [5, 50]\n")
+    assert main(["ident", str(path), "--config", str(ident), "--order", "4"]) == 2
+    assert "CRC field is zero" in _one_line_error(capsys.readouterr().err)
+    out = tmp_path / "fixed.mcap"
+    assert main(["recover", str(path), str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "skipped 1 damaged record(s)" in text and f"bytes {s}-{e}" in text
+    assert "CRC field is zero" in text
+    original = {(b.realization, b.first_sample): b.data.tobytes() for b in blocks}
+    with open_recording(out) as rec:  # every other block, bit for bit
+        got = {(b.realization, b.first_sample): b.data.tobytes() for b in rec.iter_blocks()}
+    assert all(original[key] == value for key, value in got.items())
+    assert 0 < len(original) - len(got) <= 3  # one chunk of 2 kB (50-sample blocks)
+
+
+def test_a_zero_crc_alone_is_damage_too(multi_chunk, capsys):
+    """The data untouched but the CRC field zeroed: still not what fnsi-lab writes."""
+    path, _ = multi_chunk
+    data = bytearray(path.read_bytes())
+    s, _ = _chunks(bytes(data))[3]
+    _zero_crc(data, s)
+    path.write_bytes(bytes(data))
+    assert main(["info", str(path)]) == 2
+    assert "CRC field is zero" in _one_line_error(capsys.readouterr().err)
+    assert main(["info", str(path), "--no-crc-check"]) == 0  # the documented escape hatch
+
+
+def test_a_zero_attachment_crc_is_damage(multi_chunk, capsys):
+    path, _ = multi_chunk
+    data = bytearray(path.read_bytes())
+    (s, e), = [(s, e) for op, s, e in _records(bytes(data)) if op == Opcode.ATTACHMENT]
+    data[e - 4:e] = b"\0\0\0\0"
+    path.write_bytes(bytes(data))
+    assert main(["info", str(path)]) == 2
+    assert "damaged attachment 'notes.txt'" in _one_line_error(capsys.readouterr().err)
+
+
+def _third_party_copy(src: Path, dst: Path) -> None:
+    """The same schema, channel, metadata and messages written by another program that
+    writes no CRC (mcap's Writer with enable_crcs=False)."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    with open(src, "rb") as f, open(dst, "wb") as out:
+        reader = make_reader(f)
+        writer = Writer(out, enable_crcs=False, chunk_size=2_000)
+        writer.start(profile="", library="other-daq 2.1")
+        for m in reader.iter_metadata():  # without fnsi-lab's crc32 entries
+            writer.add_metadata(m.name, {"json": m.metadata["json"]})
+        schemas, channels = {}, {}
+        for schema, channel, message in reader.iter_messages(log_time_order=False):
+            if schema.id not in schemas:
+                schemas[schema.id] = writer.register_schema(schema.name, schema.encoding,
+                                                            schema.data)
+            if channel.id not in channels:
+                channels[channel.id] = writer.register_channel(
+                    channel.topic, channel.message_encoding, schemas[schema.id],
+                    dict(channel.metadata))
+            writer.add_message(channels[channel.id], message.log_time, message.data,
+                               message.publish_time, message.sequence)
+        writer.finish()
+
+
+def test_a_third_party_file_without_crcs_reads_with_a_note(multi_chunk, tmp_path, capsys):
+    path, blocks = multi_chunk
+    other = tmp_path / "other.mcap"
+    _third_party_copy(path, other)
+    assert all(struct.unpack_from("<I", other.read_bytes(), s + 33)[0] == 0
+               for s, _ in _chunks(other.read_bytes()))
+    with open_recording(other) as rec:
+        got = [b.data.tobytes() for b in rec.iter_blocks()]
+        assert any("without CRCs" in n for n in rec.notes)
+    assert got == [b.data.tobytes() for b in blocks]
+    assert main(["info", str(other)]) == 0
+    assert "note: written by other-daq 2.1 without CRCs" in capsys.readouterr().out
+    report = recover(other, tmp_path / "other.recovered.mcap")
+    assert report.unchecked_chunks == len(_chunks(other.read_bytes())) and not report.damaged
+    assert "carry no CRC" in report.summary()
+
+
+# ---------------------------------------------------------------------------- CSV dialects
+def _csv_text(x: np.ndarray, delimiter: str, decimal: str, *, header: str) -> str:
+    # time as a spreadsheet writes it ('0,000'): no cell of the first row is an integer
+    rows = [delimiter.join([f"{k / 1000.0:.3f}".replace(".", decimal)]
+                           + [f"{v:.9g}".replace(".", decimal) for v in row])
+            for k, row in enumerate(x)]
+    return header + "\n" + "\n".join(rows) + "\n"
+
+
+@pytest.mark.parametrize("delimiter, decimal, crlf_bom", [
+    (";", ",", False), (";", ".", False), ("\t", ",", False), ("\t", ".", True),
+    (",", ".", True)])
+def test_import_of_a_csv_keeps_every_row(tmp_path, delimiter, decimal, crlf_bom):
+    """Issue 31 item 2: semicolons with decimal commas lost the first data row (read as a
+    units line), shifting every period. Every dialect keeps all 4096 rows, bit for bit."""
+    x = np.random.default_rng(3).standard_normal((4096, 2)).astype(np.float32)
+    names = ["time [s]", "F-X1 [N]", "X1 [m]"]
+    text = _csv_text(x, delimiter, decimal, header=delimiter.join(names))
+    path = tmp_path / "export.csv"
+    if crlf_bom:
+        path.write_bytes(b"\xef\xbb\xbf" + text.replace("\n", "\r\n").encode())
+    else:
+        path.write_text(text)
+    out = tmp_path / "export.mcap"
+    r = _cli("import", str(path), "--out", str(out), "--quiet")
+    assert r.returncode == 0, r.stderr
+    with open_recording(out) as rec:
+        assert rec.sample_rate_hz == 1000.0
+        np.testing.assert_array_equal(rec.read_samples(), x)
+
+
+def test_a_csv_whose_rows_cannot_all_be_read_is_refused(tmp_path):
+    """A comma-delimited file with decimal commas: more values than names on every row."""
+    x = np.array([[0.5, 1.25], [0.75, -2.5]])
+    path = tmp_path / "ambiguous.csv"
+    path.write_text(_csv_text(x, ",", ",", header="time [s],F [N],X1 [m]"))
+    r = _cli("import", str(path), "--out", str(tmp_path / "a.mcap"), "--quiet")
+    assert r.returncode == 2 and "6 columns of data but 3 names" in _one_line_error(r.stderr)
+    assert not (tmp_path / "a.mcap").exists()
+
+
+# ---------------------------------------------------------------------------- outputs
+def test_batch_never_overwrites_a_users_file_in_the_results_folder(tmp_path, write_recording,
+                                                                   capsys):
+    """Issue 31 item 3: `batch` replaced a user's lumped.json (its result name for
+    lumped.mcap) without --force. Refused before any input is identified or the table is
+    written; a result of an earlier batch is its own state and is replaced as before."""
+    src, _ = write_recording("lumped.mcap")
+    ident = tmp_path / "band.yaml"
+    ident.write_text("band_hz: [5, 50]\n")
+    results = tmp_path / "results"
+    results.mkdir()
+    mine = results / "lumped.json"
+    mine.write_text('{"my": "notes"}\n')
+    table = tmp_path / "c.parquet"
+    argv = ["batch", str(src), "--config", str(ident), "--order", "4", "--out", str(table),
+            "--results", str(results), "--scheduler", "serial", "--quiet"]
+    assert main(argv) == 2
+    line = _one_line_error(capsys.readouterr().err)
+    assert str(mine) in line and "--force" in line
+    assert mine.read_text() == '{"my": "notes"}\n' and not table.exists()
+    assert main([*argv, "--force"]) == 0  # replaced on request: now batch's own result
+    assert "campaign" in json.loads(mine.read_text())
+    ident.write_text("band_hz: [5, 45]\n")  # another config: its own result is replaced
+    assert main(argv) == 0
+
+
+def test_an_output_that_is_an_input_is_refused_even_with_force(tmp_path, write_recording,
+                                                               capsys):
+    """Issue 31 item 4: `acquire --config x.yaml --out x.yaml --force` replaced the config
+    with the recording. Every command refuses an output that is one of its inputs."""
+    config = _experiment(tmp_path)
+    text = config.read_text()
+    src, _ = write_recording()
+    recording = src.read_bytes()
+    for argv in (["acquire", "--config", str(config), "--out", str(config), "--force"],
+                 ["recover", str(src), str(src), "--force"],
+                 ["ident", str(src), "--config", "lumped-cubic", "--order", "4", "--json",
+                  str(src), "--force"],
+                 ["import", str(src), "--out", str(src), "--force"],
+                 ["replay", str(src), "--rrd", str(src), "--force", "--method", "frf"],
+                 ["report", str(src), "--out", str(src), "--force"],
+                 ["run", "--config", str(config), "--out", str(tmp_path / "r.mcap"), "--rrd",
+                  str(tmp_path / "r.mcap"), "--force"]):
+        assert main(argv) == 2, argv
+        assert "is also an input of this command" in _one_line_error(capsys.readouterr().err)
+    assert config.read_text() == text and src.read_bytes() == recording
+    assert not (tmp_path / "r.mcap").exists()
+
+
+def test_an_npz_with_complex_data_is_refused(tmp_path, capsys):
+    """Issue 31 item 5: complex y was cut to its real part (a numpy ComplexWarning, exit 0)."""
+    n = 256
+    t = np.arange(4 * n)
+    u = np.cos(2 * np.pi * 5 * t / n)
+    bad = tmp_path / "spectra.npz"
+    np.savez(bad, u=u, y=u * (1 + 0.5j), fs=256.0, N=n)
+    r = _cli("ident", str(bad), "--order", "2")
+    assert r.returncode == 2 and "Warning" not in r.stderr
+    line = _one_line_error(r.stderr)
+    assert str(bad) in line and "'y' holds complex numbers" in line and "fix:" in line
+
+
+@pytest.mark.parametrize("argv, option", [
+    (["report", "{json}", "--out", ""], "--out"),
+    (["replay", "{rec}", "--rrd", "", "--method", "frf"], "--rrd"),
+    (["run", "--config", "{exp}", "--out", "{tmp}/r.mcap", "--rrd", ""], "--rrd"),
+    (["run", "--config", "{exp}", "--out", "{tmp}/r.mcap", "--report", ""], "--report"),
+    (["batch", "{rec}", "--config", "lumped-cubic", "--order", "4", "--out",
+      "{tmp}/c.parquet", "--results", "", "--scheduler", "serial"], "--results"),
+    (["ident", "{rec}", "--config", "lumped-cubic", "--order", "4", "--json", ""], "--json"),
+    (["export", "{json}", "--uff", ""], "--uff"),
+    (["import", "{rec}", "--out", ""], "--out"),
+    (["acquire", "--config", "{exp}", "--out", ""], "--out"),
+])
+def test_an_empty_output_name_is_refused_not_read_as_the_default(
+        argv, option, tmp_path, write_recording, capsys):
+    """Issue 31 item 6: `report --out ""` wrote res.html (the default name), the same for
+    replay/run --rrd, run --report, batch --results."""
+    rec, _ = write_recording()
+    result = tmp_path / "res.json"
+    result.write_text(json.dumps({"order": 2, "input": str(rec)}))
+    names = {"json": str(result), "rec": str(rec), "exp": str(_experiment(tmp_path)),
+             "tmp": str(tmp_path)}
+    before = set(tmp_path.iterdir())
+    assert main([a.format(**names) for a in argv]) == 2
+    assert f"{option} is empty" in _one_line_error(capsys.readouterr().err)
+    assert set(tmp_path.iterdir()) == before  # nothing written, not even a default name
