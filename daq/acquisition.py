@@ -224,8 +224,9 @@ def acquire(source: Source, recorder: Any, *, taps: Sequence[Tap] = (),
     on_block : callable or None
         Called in the reader thread after each block (status display).
     chunk_signal_s : float
-        Close the recorder's chunk after this many seconds of signal (besides its own
-        wall-clock flush interval), so that a damaged chunk loses about this much.
+        Seconds of signal a chunk of the recorder holds at most (besides its own wall-clock
+        flush interval), so that a damaged chunk loses at most this much; applied by the
+        :class:`~daq.recording.writer.Recorder` itself (``max_chunk_signal_s``).
 
     Returns
     -------
@@ -242,9 +243,11 @@ def acquire(source: Source, recorder: Any, *, taps: Sequence[Tap] = (),
     work: queue.Queue[Any] = queue.Queue(maxsize=max(int(queue_blocks), 1))
     writer_error: list[BaseException] = []
 
-    # a chunk at least every second of signal: a damaged chunk then costs about one second,
-    # also when a simulation is recorded far faster than real time
-    unflushed_s = [0.0]
+    # at most a second of signal per chunk: a damaged chunk then costs at most one second,
+    # also when a simulation is recorded far faster than real time (counted in samples by
+    # the recorder: ten 0.1 s blocks summed in floats stayed below 1.0 and made 1.1 s chunks)
+    if recorder is not None and hasattr(recorder, "max_chunk_signal_s"):
+        recorder.max_chunk_signal_s = float(chunk_signal_s)
 
     def writer() -> None:
         while True:
@@ -257,10 +260,6 @@ def acquire(source: Source, recorder: Any, *, taps: Sequence[Tap] = (),
                 kind, payload = item
                 if kind == "block":
                     recorder.write_block(payload)
-                    unflushed_s[0] += payload.duration_s
-                    if unflushed_s[0] >= chunk_signal_s and hasattr(recorder, "flush"):
-                        recorder.flush()
-                        unflushed_s[0] = 0.0
                 elif kind == "event":
                     recorder.write_event(payload)
                 else:

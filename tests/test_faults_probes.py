@@ -275,3 +275,40 @@ def test_an_empty_output_name_is_refused_not_read_as_the_default(
     assert main([a.format(**names) for a in argv]) == 2
     assert f"{option} is empty" in _one_line_error(capsys.readouterr().err)
     assert set(tmp_path.iterdir()) == before  # nothing written, not even a default name
+
+
+# ---------------------------------------------------------------------------- chunk size
+def _chunk_spans_s(path: Path) -> list[float]:
+    """Seconds of signal per chunk (first to last block start, plus one block)."""
+    with open_recording(path) as rec:
+        block_s = next(rec.iter_blocks()).duration_s
+        return [(c.message_end_time - c.message_start_time) / 1e9 + block_s
+                for c in rec.summary.chunk_indexes]
+
+
+def test_one_damaged_chunk_costs_at_most_one_second(tmp_path, capsys):
+    """docs/cli.md promises at most one second per damaged chunk; ten 0.1 s blocks summed
+    in floats stayed below 1.0, so chunks held 11 blocks (1.10 s lost)."""
+    config = _experiment(tmp_path, periods=6)
+    path = tmp_path / "six.mcap"
+    assert main(["acquire", "--config", str(config), "--out", str(path), "--quiet",
+                 "--no-info"]) == 0
+    spans = _chunk_spans_s(path)
+    assert max(spans) <= 1.0 + 1e-9 and sum(s > 0.95 for s in spans) >= 4, spans
+    data = bytearray(path.read_bytes())
+    s, e = _chunks(bytes(data))[3]
+    data[(s + e) // 2] ^= 0x10
+    path.write_bytes(bytes(data))
+    report = recover(path, tmp_path / "six.recovered.mcap")
+    assert len(report.damaged) == 1
+    assert 0.9 <= report.seconds_skipped <= 1.0 + 1e-9  # exactly the damaged chunk's second
+
+
+@pytest.mark.parametrize("block_size", [100, 300, 1000, 1500])
+def test_the_recorder_closes_a_chunk_before_it_passes_one_second(write_recording,
+                                                                 block_size):
+    """Whatever the block size: a chunk never holds more than one second of signal, unless
+    one block alone is longer (then it is a chunk of its own)."""
+    path, _ = write_recording(samples_per_period=3000, n_periods=2, block_size=block_size)
+    spans = _chunk_spans_s(path)
+    assert max(spans) <= max(1.0, block_size / 1000.0) + 1e-9, spans

@@ -266,8 +266,9 @@ def write_recording(table: LabTable, plan: ImportPlan, out: str | os.PathLike[st
     fs = plan.sample_rate_hz
     total = data.shape[0]
     block_samples = plan.samples_per_period or BLOCK_SAMPLES
-    # Blocks of one period (or 4096 samples): recorded sizes stay moderate either way.
-    block_samples = min(max(block_samples, 256), 1 << 16)
+    # Blocks of one period (or 4096 samples): recorded sizes stay moderate either way; at
+    # most one second each, so that a chunk holds at most one second (docs/cli.md).
+    block_samples = min(max(block_samples, 256), 1 << 16, max(int(fs), 1))
     meta = import_metadata(table, plan, dict(options or {}))
     final = Path(out)
     # Unlike an acquisition, nothing reads the file while it grows: write a temporary

@@ -88,6 +88,10 @@ class Recorder:
         every write), so a crash loses at most about this much data.
     chunk_size : int, optional
         Uncompressed bytes after which a chunk is closed anyway (bounds memory).
+    max_chunk_signal_s : float, optional
+        Seconds of signal a chunk holds at most: the open chunk is closed before a block
+        would take it past this (a single longer block is a chunk of its own), so a damaged
+        chunk costs at most this much signal however fast the source runs (docs/cli.md).
     compression : {'zstd', 'lz4', 'none'}, optional
         Chunk compression.
 
@@ -116,7 +120,7 @@ class Recorder:
                  attachments: Iterable[Attachment] = (), flush_interval_s: float = 1.0,
                  chunk_size: int = 1 << 20,
                  compression: Literal["zstd", "lz4", "none"] = "zstd",
-                 start_utc_ns: int | None = None) -> None:
+                 start_utc_ns: int | None = None, max_chunk_signal_s: float = 1.0) -> None:
         channels = tuple(channels)
         if not channels:
             raise ValueError("a recording needs at least one channel")
@@ -129,10 +133,14 @@ class Recorder:
             raise ValueError(f"compression must be one of {sorted(_COMPRESSION)}, got {compression!r}")
         if not flush_interval_s > 0:
             raise ValueError(f"flush_interval_s must be > 0, got {flush_interval_s}")
+        if not max_chunk_signal_s > 0:
+            raise ValueError(f"max_chunk_signal_s must be > 0, got {max_chunk_signal_s}")
         self.path = Path(path)
         self.channels = channels
         self.sample_rate_hz = float(sample_rate_hz)
         self.flush_interval_s = float(flush_interval_s)
+        self.max_chunk_signal_s = float(max_chunk_signal_s)
+        self._chunk_samples = 0  # samples in the open chunk (integer: no rounding drift)
         self._names = tuple(names)
         self._lock = threading.Lock()  # held during each write; close() never blocks on it
         self._close_requested = False
@@ -231,13 +239,18 @@ class Recorder:
             raise RecorderClosedError(f"{self.path}: write to a closed recorder; "
                                       "open a new Recorder")
 
+    def _flush_chunk(self) -> None:
+        """Close the open chunk and hand it to the OS (the lock is held)."""
+        self._writer.flush()
+        self._last_flush = time.monotonic()
+        self.blocks_flushed = self.blocks_written
+        self._chunk_samples = 0
+
     def _end(self) -> None:
         try:
             now = time.monotonic()
             if now - self._last_flush >= self.flush_interval_s:
-                self._writer.flush()
-                self._last_flush = now
-                self.blocks_flushed = self.blocks_written
+                self._flush_chunk()
         finally:
             self._lock.release()
         if self._close_requested:  # close() arrived (signal/other thread) during the write
@@ -276,14 +289,22 @@ class Recorder:
         if self._log_time_offset_ns is None:
             self._log_time_offset_ns = self.start_utc_ns - int(block.t0_ns)
         log_time = max(int(block.t0_ns) + self._log_time_offset_ns, 0)
+        n = int(data.shape[0])
+        limit = max(int(round(self.max_chunk_signal_s * float(block.sample_rate_hz
+                                                              or self.sample_rate_hz))), 1)
         self._begin()
         try:
+            if self._chunk_samples and self._chunk_samples + n > limit:
+                self._flush_chunk()  # this block would take the chunk past the limit
             # MCAP's message sequence is uint32; the full counter is in the payload.
             self._writer.add_message(self._samples_channel, log_time=log_time,
                                      data=payload, publish_time=log_time,
                                      sequence=int(block.sequence) & 0xFFFFFFFF)
             self.blocks_written += 1
-            self.samples_written += int(data.shape[0])
+            self.samples_written += n
+            self._chunk_samples += n
+            if self._chunk_samples >= limit:
+                self._flush_chunk()
         finally:
             self._end()
 
@@ -359,9 +380,7 @@ class Recorder:
         """Close the open chunk and hand everything to the OS now (no fsync)."""
         self._begin()
         try:
-            self._writer.flush()
-            self._last_flush = time.monotonic()
-            self.blocks_flushed = self.blocks_written
+            self._flush_chunk()
         finally:
             self._lock.release()
         if self._close_requested:
