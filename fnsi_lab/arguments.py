@@ -124,9 +124,9 @@ def check_order_options(*, order: Any = None, max_order: Any = None, block_rows:
     out["orders"] = check_orders(orders, name("orders"))
     if out["order"] is not None and out["max_order"] is not None \
             and out["max_order"] < out["order"]:
-        raise ConfigError(f"{out['max_order']} is below the order {out['order']}",
-                          field=name("max_order"),
-                          fix=f"give {name('max_order')} >= {out['order']}, or omit it")
+        raise ConfigError(f"{name('max_order')} {out['max_order']} is below "
+                          f"{name('order')} {out['order']}",
+                          fix=f"give {name('max_order')} >= {out['order']}, or leave it out")
     return out
 
 
