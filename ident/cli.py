@@ -274,6 +274,8 @@ def run_ident(args: argparse.Namespace) -> int:
                                    progress=show)
     res = result.to_json()
     if not args.quiet and args.json_out != "-":
+        if (res.get("periods") or {}).get("statement"):
+            print(f"periods: {res['periods']['statement']}")
         _print_parameter_summary(res)
         refined = bool((res.get("output_error") or {}).get("applied"))
         if result.auto is not None:

@@ -83,6 +83,7 @@ class IdentConfig:
     weighting: str = "auto"
     highpass_hz: float | None = None
     steady_state_tolerance: float = 0.05
+    steady_periods: str = "auto"
     time_base: str = "auto"
     bilinear_period_s: float | None = None
     basis_oversample: int = 8
@@ -326,6 +327,7 @@ def parse_ident_config(data: Any, *, file: str | None = None) -> IdentConfig:
             weighting=sec.string("weighting", "auto", choices=WEIGHTINGS),
             highpass_hz=sec.number("highpass_hz", None, nonnegative=True),
             steady_state_tolerance=sec.number("steady_state_tolerance", 0.05, positive=True),
+            steady_periods=sec.string("steady_periods", "auto", choices=("auto", "all")),
             time_base=sec.string("time_base", "auto",
                                  choices=("auto", "band-limited", "zoh", "bilinear")),
             bilinear_period_s=sec.number("bilinear_period_s", None, positive=True),

@@ -19,6 +19,7 @@ import numpy as np
 from fnsi_lab.ident.basis import Nonlinearity, coefficient_names, evaluate_basis
 from fnsi_lab.ident.errors import IdentError, IdentWarning
 from fnsi_lab.ident.excitation import ExcitationGrid, _best_grid, detect_excited_lines
+from fnsi_lab.ident.steady import select_steady_periods
 from fnsi_lab.ident.noise import (mains_contaminated_lines, mains_outlier_lines,
                                   noise_from_nonexcited, noise_lines,
                                   resolution_variance)
@@ -153,6 +154,9 @@ class FrequencyData:
         How the excited lines were obtained (:meth:`ident.excitation.ExcitationGrid.to_dict`).
     offsets : dict or None
         DC of every channel and what was done with it (:func:`offsets_report`).
+    periods : dict or None
+        Which periods were averaged and why, the drift per period
+        (:meth:`ident.steady.PeriodSelection.to_dict`).
     """
 
     lines: np.ndarray
@@ -182,6 +186,7 @@ class FrequencyData:
     noise_resolved: np.ndarray | None = None
     excitation: dict | None = None
     offsets: dict | None = None
+    periods: dict | None = None
 
     @property
     def n_lines(self) -> int:
@@ -430,6 +435,7 @@ def prepare_frequency_data(record: Any = None, *, u: Any = None, y: Any = None,
                            highpass_hz: float | None = None,
                            excitation_threshold: float = 1e-3,
                            steady_state_tolerance: float = 0.05,
+                           steady_periods: Literal["auto", "all"] = "auto",
                            time_base: Literal["auto", "band-limited", "zoh", "bilinear"] = "auto",
                            bilinear_period_s: float | None = None,
                            basis_oversample: int = 8,
@@ -481,6 +487,12 @@ def prepare_frequency_data(record: Any = None, *, u: Any = None, y: Any = None,
     steady_state_tolerance : float
         Warn (:class:`IdentWarning`) when the relative period-to-period RMS difference of the
         kept outputs exceeds it.
+    steady_periods : {'auto', 'all'}
+        ``auto`` (default): after the ``transient_periods``, leave out the leading periods
+        that still differ from the settled ones (:func:`ident.steady.select_steady_periods`;
+        on the aircraft-like GVT the second period at 12 N, whose 0.5 %-damped modes still
+        ring); ``all``: average every period after them. Either way the drift per period
+        and the periods used are in ``FrequencyData.periods``.
     time_base : {'auto', 'band-limited', 'zoh', 'bilinear'}
         How the discrete-time model relates to continuous time. ``'auto'`` (default):
         ``'band-limited'`` for displacement outputs, ``'bilinear'`` for velocity and
@@ -583,7 +595,8 @@ def prepare_frequency_data(record: Any = None, *, u: Any = None, y: Any = None,
     P_tr = int(transient_periods or 0)
     if P_tr < 0 or P_tr >= P_tot:
         raise IdentError(f"transient_periods={P_tr} leaves no period out of {P_tot}")
-    U4, Y4 = U4[:, P_tr:], Y4[:, P_tr:]
+    if steady_periods not in ("auto", "all"):
+        raise IdentError(f"steady_periods {steady_periods!r} is not one of ['auto', 'all']")
     P = P_tot - P_tr
     output_names = tuple(output_names) if output_names is not None else tuple(f"y{i}" for i in range(p))
     input_names = tuple(input_names) if input_names is not None else tuple(f"u{i}" for i in range(m))
@@ -603,6 +616,10 @@ def prepare_frequency_data(record: Any = None, *, u: Any = None, y: Any = None,
     if K.size == 0:
         raise IdentError(f"no DFT line in band {band_hz} Hz (fs={fs:g} Hz, N={N})")
 
+    # the periods in steady state (ident.steady), compared on the processed band
+    selection = select_steady_periods(Y4, P_tr, bins=K, select=steady_periods == "auto")
+    U4, Y4 = U4[:, list(selection.used)], Y4[:, list(selection.used)]
+    P = Y4.shape[1]
     # steady-state check: period-to-period difference of the kept outputs
     ss_err = 0.0
     if P >= 2:
@@ -612,8 +629,8 @@ def prepare_frequency_data(record: Any = None, *, u: Any = None, y: Any = None,
         if ss_err > steady_state_tolerance:
             warnings.warn(f"outputs may not be in periodic steady state: relative "
                           f"period-to-period RMS difference {ss_err:.3g} > "
-                          f"{steady_state_tolerance:g} (drop more transient periods)",
-                          IdentWarning, stacklevel=2)
+                          f"{steady_state_tolerance:g} over the periods used ("
+                          f"{selection.statement})", IdentWarning, stacklevel=2)
 
     u_avg = U4.mean(axis=1)  # (R, N, m)
     y_avg = Y4.mean(axis=1)  # (R, N, p)
@@ -772,7 +789,7 @@ def prepare_frequency_data(record: Any = None, *, u: Any = None, y: Any = None,
         noise_source=noise_source, noise_var=noise_var, noise_resolved=noise_resolved,
         excitation=dict(grid.to_dict(fs, N), mains_dropped_hz=hum_hz,
                         n_mains_dropped_lines=int(hum_lines.size)),
-        offsets=offsets)
+        offsets=offsets, periods=selection.to_dict())
     return with_basis(data, basis) if basis else data
 
 
@@ -1029,7 +1046,8 @@ def data_report(data: FrequencyData) -> dict:
             "the excited band (a full multisine). The fit is unweighted, and the detection "
             "test judges each mode against the model's residual only, which an over-fitting "
             "model makes small; record two or more steady periods, or use an odd multisine.")
-    return {"noise": noise, "excitation": data.excitation, "offsets": data.offsets}
+    return {"noise": noise, "excitation": data.excitation, "offsets": data.offsets,
+            "periods": data.periods}
 
 
 def cut_realizations(x: np.ndarray, starts: Sequence[int], samples_per_period: int, *,

@@ -168,6 +168,7 @@ def prepare_session(inp: IdentInput, cfg: IdentConfig, *, search_order: int | No
             output_quantity=quantity, output_names=inp.output_channels,
             input_names=inp.input_channels, excited_lines=inp.excited_lines,
             highpass_hz=cfg.highpass_hz, steady_state_tolerance=cfg.steady_state_tolerance,
+            steady_periods=cfg.steady_periods,
             time_base=cfg.time_base, bilinear_period_s=cfg.bilinear_period_s,
             basis_oversample=cfg.basis_oversample,
             integration_min_snr=cfg.integration_min_snr or None)
