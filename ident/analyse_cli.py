@@ -55,7 +55,7 @@ def register(subparsers) -> None:
                    help="write an offline HTML report with the level plots")
     p.add_argument("--output", action="append", default=None, metavar="NAME",
                    help="output(s) drawn in the Rerun recording and the report (default: "
-                        "the most distorted ones, at most 6)")
+                        "the three whose distortion stands highest above the noise)")
     p.add_argument("--force", action="store_true", help="replace existing output files")
     p.add_argument("--quiet", action="store_true", help="no summary on stdout")
     p.set_defaults(handler=run_analyse)
@@ -81,6 +81,8 @@ def print_summary(report: Any, out=None) -> None:
             print(f"  {o.name:15s} {_fmt_db(o.output_db)} {_fmt_db(o.noise_db)} "
                   f"{_fmt_db(o.odd_distortion_db)} {_fmt_db(o.even_distortion_db)}        "
                   f"{o.verdict}", file=out)
+        for note in rec.notes:
+            print(f"  note: {note}", file=out)
         if rec.resonances:
             print("  resonances: " + ", ".join(
                 f"{r.frequency_hz:.4g} Hz ({100 * r.damping_ratio:.2f} %)"

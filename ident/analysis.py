@@ -92,9 +92,36 @@ def analyse_input(inp: IdentInput, cfg: IdentConfig | None = None, *,
         if lines.size == 0:
             raise IdentDataError(f"{inp.path}: no multisine found in input {name!r}: give "
                                  "'excited_lines' in the file or the drive channel")
-    return analyse_arrays(u, y, inp.sample_rate_hz, np.asarray(lines), input_name=name,
-                          output_names=inp.output_channels, band_hz=band_hz, path=inp.path,
-                          alpha=alpha, keep_spectra=keep_spectra)
+    rec = analyse_arrays(u, y, inp.sample_rate_hz, np.asarray(lines), input_name=name,
+                         output_names=inp.output_channels, band_hz=band_hz, path=inp.path,
+                         alpha=alpha, keep_spectra=keep_spectra)
+    note = first_period_note(y, transient)
+    if note:
+        rec.notes.append(note)
+    return rec
+
+
+def first_period_note(y: np.ndarray, transient: int) -> str | None:
+    """A note when the first analysed period departs from the others like a transient.
+
+    ``y`` (R, P, N, p): each period's RMS difference from the mean of the other periods;
+    with ``P >= 4`` the first one is flagged when it exceeds three times the largest of the
+    others (noise alone spreads them evenly), since its leftover transient is counted as
+    noise and distortion.
+    """
+    R, P = y.shape[:2]
+    if P < 4:
+        return None
+    dev = np.empty(P)
+    for p in range(P):
+        rest = np.delete(y, p, axis=1).mean(axis=1)
+        dev[p] = float(np.sqrt(np.mean((y[:, p] - rest) ** 2)))
+    if dev[0] > 3 * dev[1:].max():
+        ratio = dev[0] / np.median(dev[1:])
+        return (f"the first analysed period differs from the others {ratio:.0f}x more than "
+                f"they do among themselves: a transient? (transient_periods is {transient}; "
+                "raise it in the config)")
+    return None
 
 
 def analyse_inputs(inputs: Sequence[IdentInput], cfg: IdentConfig | None = None, *,

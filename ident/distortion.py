@@ -191,6 +191,7 @@ class RecordAnalysis:
     alpha: float
     n_tests: int
     timings_s: dict[str, float] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
 
     @property
     def band_hz(self) -> tuple[float, float]:
@@ -200,10 +201,12 @@ class RecordAnalysis:
     def to_dict(self, spectra: bool = False) -> dict:
         df = self.sample_rate_hz / self.samples_per_period
         exc = self.lines.excited
-        grid = "odd" if self.lines.parity else "full or other"
-        if self.lines.parity and (self.lines.odd.size and np.any(
-                (self.lines.odd > exc.min()) & (self.lines.odd < exc.max()))):
-            grid = "odd with odd detection lines"
+        inside = np.arange(exc.min(), exc.max() + 1)
+        if self.lines.parity:
+            grid = ("odd with odd detection lines" if np.any(~np.isin(inside[inside % 2 == 1],
+                                                                        exc)) else "odd")
+        else:
+            grid = "full" if np.all(np.isin(inside, exc)) else "sparse (not all odd)"
         return {
             "input": self.path, "input_channel": self.input_channel,
             "input_rms": self.input_rms, "sample_rate_hz": self.sample_rate_hz,
@@ -218,7 +221,7 @@ class RecordAnalysis:
             "alpha": self.alpha, "n_tests": self.n_tests,
             "outputs": [o.to_dict(spectra) for o in self.outputs],
             "resonances": [r.to_dict() for r in self.resonances],
-            "timings_s": dict(self.timings_s)}
+            "notes": list(self.notes), "timings_s": dict(self.timings_s)}
 
 
 # ----------------------------------------------------------------------------- lines
@@ -719,6 +722,9 @@ def analyse_arrays(u: np.ndarray, y: np.ndarray, sample_rate_hz: float,
         raise IdentError(f"{path}: no excited line")
     if band_hz is None:
         band_hz = (float(exc.min()) * df, min(3.0 * float(exc.max()) * df, 0.45 * fs))
+    elif not 0 <= band_hz[0] < band_hz[1]:
+        raise IdentError(f"{path}: analysed band {list(band_hz)} Hz is not [f_low, f_high] "
+                         "with 0 <= f_low < f_high")
     n_bins = N // 2 + 1
     band_bins = (int(np.ceil(band_hz[0] / df - 1e-9)), int(np.floor(band_hz[1] / df + 1e-9)))
     sets = line_sets(exc, band_bins, n_bins, fs, N)

@@ -145,6 +145,11 @@ def test_silverbox_real_record():
     (res,) = rec["resonances"]
     # the BLA at this level: the underlying 68.3 Hz (README) stiffened by the cubic spring
     assert 68.0 < res["frequency_hz"] < 76.0 and 0.02 < res["damping_ratio"] < 0.08
+    assert rec["notes"] == []
+    # without the config's transient_periods: 11 periods, the first one transient (README)
+    out = _cli("analyse", str(SILVERBOX / "schroeder.npz"), "--json", "-")
+    (note,) = json.loads(out.stdout)["records"][0]["notes"]
+    assert "transient" in note
 
 
 def test_false_alarm_rate_of_the_decision_rule():
