@@ -7,6 +7,7 @@ Public API (docs/api.md)::
     result = fnsi_lab.identify("run.mcap", config="smallsat39")   # FNSI, robust pipeline
     result.order, result.modes, result.coefficients, result.to_json()
     fnsi_lab.open_recording("run.mcap")                      # read a recording
+    fnsi_lab.validate_model("result.json", "other.mcap")     # the model on another record
 
 Sub-packages: :mod:`fnsi_lab.daq` (channels, sources, MCAP recording), :mod:`fnsi_lab.ident`
 (FNSI on arrays), :mod:`fnsi_lab.replay` (recordings as streams, the live service),
@@ -19,7 +20,7 @@ from typing import Any
 __version__ = "0.1.0"
 
 __all__ = ["identify", "analyse", "open_recording", "acquire", "load_config", "Identification",
-           "__version__"]
+           "validate_model", "__version__"]
 
 
 def __getattr__(name: str) -> Any:
@@ -28,4 +29,8 @@ def __getattr__(name: str) -> Any:
         from fnsi_lab import api
 
         return getattr(api, name)
+    if name == "validate_model":   # fnsi_lab.validate is the YAML helper module
+        from fnsi_lab.model_validation import validate_model
+
+        return validate_model
     raise AttributeError(f"module 'fnsi_lab' has no attribute {name!r}")

@@ -28,7 +28,7 @@ from fnsi_lab.blas import restored_blas_threads
 from fnsi_lab.errors import FnsiLabError
 
 #: Modules that contribute subcommands, in help order.
-COMMAND_MODULES = ("fnsi_lab.daq.cli", "fnsi_lab.daq.drive_cli", "fnsi_lab.daq.formats.cli", "fnsi_lab.ident.cli", "fnsi_lab.ident.analyse_cli", "fnsi_lab.export.cli", "fnsi_lab.replay.cli", "fnsi_lab.viewer.cli", "fnsi_lab.viewer.report_cli", "fnsi_lab.campaign.cli")
+COMMAND_MODULES = ("fnsi_lab.daq.cli", "fnsi_lab.daq.drive_cli", "fnsi_lab.daq.formats.cli", "fnsi_lab.ident.cli", "fnsi_lab.ident.analyse_cli", "fnsi_lab.export.cli", "fnsi_lab.replay.cli", "fnsi_lab.viewer.cli", "fnsi_lab.viewer.report_cli", "fnsi_lab.campaign.cli", "fnsi_lab.validation_cli")
 
 #: Command -> module registering it, for commands whose module need not be imported to
 #: find them. A module of COMMAND_MODULES whose commands are not listed here still works:
@@ -41,10 +41,11 @@ COMMAND_INDEX = {
     "view": "fnsi_lab.viewer.cli", "report": "fnsi_lab.viewer.report_cli", "import": "fnsi_lab.daq.formats.cli",
     "export": "fnsi_lab.export.cli",
     "batch": "fnsi_lab.campaign.cli", "campaign": "fnsi_lab.campaign.cli",
+    "validate": "fnsi_lab.validation_cli",
 }
 
 #: Commands that read recordings: they get ``--no-crc-check``.
-READS_RECORDINGS = ("info", "ident", "analyse", "replay", "report", "export", "batch")
+READS_RECORDINGS = ("info", "ident", "analyse", "replay", "report", "export", "batch", "validate")
 
 EPILOG = """\
 examples:

@@ -31,6 +31,7 @@ from fnsi_lab.ident.errors import IdentError, IdentWarning, NoExcitedLineError
 from fnsi_lab.ident.fnsi import StateSpaceModel, model_at_order, subspace_decomposition
 from fnsi_lab.ident.io import IdentInput, select_channels
 from fnsi_lab.ident.modal import ModalModel
+from fnsi_lab.ident.model_json import processing_json, state_space_json
 from fnsi_lab.ident.output_error import (MAX_MISFIT, OutputErrorFit, omitted_mode_evidence,
                                         refine_output_error, refinement_case)
 from fnsi_lab.ident.parameter_search import (DEFAULT_SEARCH_ORDER, estimate_basis_parameters,
@@ -603,6 +604,11 @@ class Identification:
             out["parameter_search"] = {k: v for k, v in s.parameter_search.to_dict().items()
                                        if k != "estimates"}
         out["coefficient_spectra"] = _spectra_json(self.coefficient_spectra)
+        # the model itself, for fnsi-lab validate (ident/model_json.py, docs/validate.md)
+        out["state_space"] = state_space_json(model)
+        out["processing"] = processing_json(
+            s.config, s.config.transient_periods if s.config.transient_periods is not None
+            else s.input.transient_periods, data.samples_per_period)
         frf = self.frf()
         out["frf"] = {k: ({"re": v.real, "im": v.imag} if isinstance(v, np.ndarray)
                           and np.iscomplexobj(v) else v) for k, v in frf.items()}
@@ -664,6 +670,10 @@ def _nonlinearity_json(nl: Nonlinearity, search: Any = None, truth: Mapping | No
     elif nl.kind == "polynomial":
         out.update(exponent=nl.exponent, exponent_std=std("exponent"), signed=nl.signed,
                    argument=nl.argument, offset=nl.offset)
+    elif nl.kind == "coulomb":
+        out.update(velocity_scale=nl.velocity_scale, offset=nl.offset)
+    else:
+        out.update(offset=nl.offset)
     out["estimated"] = [p for p in ESTIMABLE.get(nl.kind, ()) if p in est]
     if est:
         out["objective"] = {p: {"values": e.profile_values, "relative_model_error":

@@ -1,0 +1,91 @@
+"""``fnsi-lab validate RESULT.json RECORD``: an identified model on a record it was not fitted to."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any
+
+EPILOG = """\
+examples:
+  fnsi-lab ident low.mcap --config duffing.yaml --auto --json low.json
+  fnsi-lab validate low.json high.mcap                      # simulate low.json's model on high.mcap
+  fnsi-lab validate low.json high.mcap --json val.json --svg val.svg
+  fnsi-lab validate r98.json gvt/aircraft-rms84.mcap        # aircraft GVT, another level
+
+Per output: the RMS of the measured output over the model's band, and of the simulation
+error of the nonlinear model and of its underlying linear model, in the record's units and
+in dB relative to the output (negative: below it). Exit status 1 when the nonlinear model
+has no steady state on the record (the linear figures are still printed and written).
+"""
+
+
+def _validate(args: argparse.Namespace) -> int:
+    from fnsi_lab.model_validation import figure_validation, validate_model
+    from fnsi_lab.outputs import atomic_output, check_output_path, write_json
+
+    for path, option in ((args.json_out, "--json"), (args.svg, "--svg")):
+        if path:
+            check_output_path(path, force=args.force, option=option)
+    if not args.quiet:
+        print(f"validating {args.result} on {args.record} ...", file=sys.stderr)
+    v = validate_model(args.result, args.record, method=args.method,
+                       samples_per_period=args.samples_per_period)
+    _print(v)
+    if args.json_out:
+        write_json(v.to_json(), args.json_out)
+    if args.svg:
+        with atomic_output(args.svg) as fh:
+            figure_validation(v).savefig(fh, format="svg")
+    if not v.converged:
+        print("fnsi-lab validate: the nonlinear model has no steady state on this record "
+              f"({v.simulation.info.get('reason')})", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _print(v: Any, out=None) -> None:
+    out = out or sys.stdout
+    info = v.info
+    lo, hi = info["band_hz"]
+    extra = (f", {info['n_periods']} periods averaged" if info.get("n_periods") else "")
+    print(f"validation ({v.method}, {lo:g}-{hi:g} Hz{extra}; nonlinear terms: "
+          f"{', '.join(info['nonlinearities']) or 'none'})", file=out)
+    print(f"{'output':14s} {'output RMS':>12s}  {'nonlinear error':>24s}  {'linear error':>24s}",
+          file=out)
+    for r in v.outputs:
+        nl = ("-" if r["error_rms"] is None
+              else f"{r['error_rms']:.4g} ({r['error_db']:+.1f} dB)")
+        lin = f"{r['linear_error_rms']:.4g} ({r['linear_error_db']:+.1f} dB)"
+        print(f"{r['name']:14s} {r['output_rms']:>12.4g}  {nl:>24s}  {lin:>24s}   "
+              f"[{r.get('unit', '')}]", file=out)
+    for w in info.get("warnings", []):
+        print(f"  warning: {w}", file=out)
+
+
+def register(subparsers) -> None:
+    """Add ``validate`` to the ``fnsi-lab`` parser."""
+    p = subparsers.add_parser(
+        "validate", formatter_class=argparse.RawDescriptionHelpFormatter,
+        help="simulate an identified model on another record and compare (nonlinear vs linear)",
+        description="Simulate the nonlinear model of an 'fnsi-lab ident --json' result, and "
+                    "its underlying linear model, with a record's measured force (periodic "
+                    "record: harmonic balance over the processed band; otherwise time "
+                    "integration) and compare with the measured outputs (docs/validate.md). "
+                    "The record may be .mcap, .npz or .mat, as for 'fnsi-lab ident'.",
+        epilog=EPILOG)
+    p.add_argument("result", metavar="RESULT.json", help="result of fnsi-lab ident --json")
+    p.add_argument("record", metavar="RECORD", help="recording or array file (.mcap, .npz, .mat)")
+    p.add_argument("--json", dest="json_out", metavar="OUT.json",
+                   help="write outputs[].{name, output_rms, error_rms, error_db, "
+                        "linear_error_rms, linear_error_db} and the method's details")
+    p.add_argument("--svg", metavar="FIG.svg",
+                   help="figure: measured output spectrum and both errors per output")
+    p.add_argument("--method", choices=("auto", "balance", "time"), default="auto",
+                   help="auto (default): harmonic balance for periodic records, time "
+                        "integration otherwise")
+    p.add_argument("--samples-per-period", type=int, metavar="N",
+                   help="N of an array file that does not give it")
+    p.add_argument("--force", action="store_true", help="replace existing --json/--svg files")
+    p.add_argument("--quiet", action="store_true", help="no progress line")
+    p.set_defaults(handler=_validate)
