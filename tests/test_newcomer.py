@@ -79,6 +79,7 @@ TABLE_CASES: dict[str, list[list[str]]] = {
     "report": [["report", "result.json", "--out", "report.html"]],
     "import": [["import", "lab.csv", "--out", "imported.mcap", "--inputs", "F"]],
     "export": [["export", "result.json", "--uff", "result.uff", "--csv", "tables"]],
+    "validate": [["validate", "result.json", "acquired.mcap", "--json", "validation.json"]],
 }
 
 
