@@ -196,10 +196,12 @@ def _print_refinement(res: dict, out=None) -> None:
 
 
 def _print_auto_summary(res: Any, out=None, warnings: list | tuple = (),
-                        refined: bool = False, units: dict | None = None) -> None:
+                        refined: bool = False, units: dict | None = None,
+                        fates: list | None = None) -> None:
     """Summary of a robust-pipeline result (:class:`~fnsi_lab.ident.auto_result.AutoResult`);
     ``refined``: the answer is the output-error refinement's (printed after); ``units``:
-    the JSON's ``units`` block (coefficient units)."""
+    the JSON's ``units`` block (coefficient units); ``fates``: each MDI row's fate
+    (:mod:`ident.pole_fate`, the JSON's ``mdi[].fate``)."""
     out = out or sys.stdout
     coefficient_units = (units or {}).get("coefficients") or {}
     ic = res.information_criterion
@@ -209,12 +211,16 @@ def _print_auto_summary(res: Any, out=None, warnings: list | tuple = (),
           f"{res.modal_dominancy.band_hz[0]:g}-{res.modal_dominancy.band_hz[1]:g} Hz): "
           f"confidence {res.confidence['level']}", file=out)
     print("  " + res.confidence["statement"], file=out)
-    for row in res.mdi_table():
+    from fnsi_lab.ident.pole_fate import fate_label, pole_fates
+
+    rows = res.mdi_table()
+    fates = fates or pole_fates(rows, res.confidence)
+    for row, fate in zip(rows, fates):
         if not row["in_band"]:
             continue
         print(f"  {row['frequency_hz']:9.3f} Hz  {100 * row['damping_ratio']:6.2f} %  "
               f"MDI {row['mdi_h2']:9.3g}  {row['stabilisation'] or '':9s} "
-              f"{'physical' if row['physical'] else 'spurious'}", file=out)
+              f"{fate_label(fate)}", file=out)
     if res.reduced is not None:
         print(f"reduced model: order {res.reduced.order}", file=out)
     answer = "reduced" if res.final == "reduced" else "full"
@@ -280,7 +286,8 @@ def run_ident(args: argparse.Namespace) -> int:
         refined = bool((res.get("output_error") or {}).get("applied"))
         if result.auto is not None:
             _print_auto_summary(result.auto, warnings=res["warnings"], refined=refined,
-                                units=res.get("units"))
+                                units=res.get("units"),
+                                fates=[r.get("fate") for r in res.get("mdi") or []] or None)
         else:
             _print_summary(res)
         _print_refinement(res)

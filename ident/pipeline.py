@@ -43,6 +43,7 @@ from fnsi_lab.ident.request import (DEFAULT_ORDERS, IdentRequest, basis_from_tru
                                     default_config, resolve_request)
 from fnsi_lab.ident.verdict import coefficient_verdict
 from fnsi_lab.ident.units import add_coefficient_units, result_units
+from fnsi_lab.ident.pole_fate import result_fates
 from fnsi_lab.progress import Progress
 
 __all__ = ["IdentSession", "Identification", "prepare_session", "identify_input",
@@ -620,7 +621,10 @@ class Identification:
         out["timings_s"] = {**s.timings_s, **out.get("timings_s", {})}
         units = self.units
         out["units"] = units
-        return add_coefficient_units(json_safe(out), units)
+        doc = add_coefficient_units(json_safe(out), units)
+        for row, fate in zip(doc.get("mdi") or [], result_fates(doc)):
+            row["fate"] = fate  # one vocabulary for a pole's fate (ident.pole_fate)
+        return doc
 
     def _fixed_order_dict(self) -> dict:
         data, model, dec = self.data, self.model, self.decomposition

@@ -242,7 +242,8 @@ def frf_view(update: Any) -> dict[str, Any]:
 
 def format_table(update: Any) -> str:
     """Plain-text result table (the paper's Table 2 layout) of the last update."""
-    from fnsi_lab.replay.service import AutoIdentification, mode_table, summary_rows
+    from fnsi_lab.replay.service import (AutoIdentification, left_out_hz, mode_table,
+                                         summary_rows)
 
     if update is None:
         return "no identification (the reason follows)"
@@ -252,7 +253,7 @@ def format_table(update: Any) -> str:
     rows = summary_rows(update)
     width = max(len(k) for k, _ in rows)
     lines += [f"{k:<{width}}  {v}" for k, v in rows]
-    table = mode_table(update.result.result)
+    table = mode_table(update.result.result, left_out_hz(update.result))
     if table:
         cols = list(table[0])
         w = [max(len(c), *(len(str(r[c])) for r in table)) for c in cols]

@@ -746,9 +746,15 @@ def auto_view(update: ServiceUpdate) -> dict[str, Any]:
     ic = res.information_criterion
     view["criterion"] = {"orders": ic.orders, "criterion": ic.value,
                          "selected_order": res.selected_order}
-    md = res.modal_dominancy
+    from fnsi_lab.ident.pole_fate import pole_fates
+
     thr = res.threshold.threshold
-    view["mdi"] = {"frequency_hz": md.frequency_hz, "mdi": md.mdi, "kept": res.physical,
+    rows = res.mdi_table()  # sorted by frequency, with the decisions
+    key = f"mdi_{res.modal_dominancy.norm}"
+    view["mdi"] = {"frequency_hz": np.array([r["frequency_hz"] for r in rows]),
+                   "mdi": np.array([r.get(key, r["mdi_h2"]) for r in rows]),
+                   "kept": np.array([r["physical"] for r in rows], bool),
+                   "fate": pole_fates(rows, res.confidence, left_out_hz(ai)),
                    "threshold": float(thr) if np.isfinite(thr) else None}
     if ai.coefficient_curves:
         view["coefficients"] = {"frequency_hz": ai.coefficient_curves["frequency_hz"],
@@ -776,7 +782,7 @@ def auto_view(update: ServiceUpdate) -> dict[str, Any]:
                            "coefficients": coefficient_means(ai)}
     view["summary"] = summary_markdown(
         f"Identification update {update.update} ({update.n_periods} steady periods)",
-        summary_rows(update), mode_table(res))
+        summary_rows(update), mode_table(res, left_out_hz(ai)))
     return view
 
 
@@ -820,10 +826,21 @@ def summary_rows(update: ServiceUpdate) -> list[tuple[str, str]]:
     return rows
 
 
-def mode_table(res: Any) -> list[dict[str, Any]]:
-    """One row per mode of the MDI order: frequency, damping, MDI, classification."""
+def left_out_hz(ai: AutoIdentification) -> list[float]:
+    """Frequencies of the split modes the output-error refinement left out (Hz)."""
+    evidence = getattr(ai.identification.session, "evidence", {}) or {}
+    return [float(m["frequency_hz"]) for m in
+            ((evidence.get("output_error") or {}).get("left_out") or [])]
+
+
+def mode_table(res: Any, left_out_hz: Sequence[float] = ()) -> list[dict[str, Any]]:
+    """One row per mode of the MDI order: frequency, damping, MDI, stabilisation and its fate
+    (:mod:`ident.pole_fate`: physical, spurious by MDI, not detectable...)."""
+    from fnsi_lab.ident.pole_fate import fate_label, pole_fates
+
     out = []
-    for row in res.mdi_table():
+    rows = res.mdi_table()
+    for row, fate in zip(rows, pole_fates(rows, res.confidence, left_out_hz)):
         if not row["in_band"]:
             continue
         out.append({"f (Hz)": round(row["frequency_hz"], 3),
@@ -831,7 +848,7 @@ def mode_table(res: Any) -> list[dict[str, Any]]:
                     "MDI": float(f"{row[f'mdi_{res.options.mdi_norm}']:.3g}")
                     if f"mdi_{res.options.mdi_norm}" in row else None,
                     "stabilisation": row["stabilisation"],
-                    "physical": "yes" if row["physical"] else "no"})
+                    "fate": fate_label(fate)})
     return out
 
 

@@ -71,8 +71,10 @@ def test_report_from_json_and_from_the_recording(chain, capsys):
     # every pole of the stabilisation diagram is drawn: one marker per pole
     n_poles = sum(len(o["poles"]) for o in result["stabilisation"])
     assert f"Stabilisation diagram ({n_poles} poles)" in page
-    # the mode table lists the three modes of the chain as physical
-    assert page.count("<td>yes</td>") >= 3
+    # the mode table lists the three modes of the chain as physical (the fate's words)
+    assert page.count("<td>physical</td>") + page.count("<td>physical (stabilisation)</td>") >= 3
+    # the MDI caption explains every fate drawn
+    assert "drawn by its fate" in page and "physical: above the MDI threshold" in page
     # the report of the recording identifies it the same way (same stabilisation title)
     assert main(["report", str(mcap), "--orders", "2:10", "--out", str(d / "from_mcap.html"),
                  "--quiet"]) == 0

@@ -43,6 +43,20 @@ POLE_STYLE: dict[str, tuple[tuple[int, int, int], str]] = {
     "unstable": (_RED, "unstable"),
 }
 
+#: A pole's fate (ident.pole_fate: the words of the terminal, the JSON and the report) ->
+#: (colour, legend). Kept poles in greens/blues, each reason for dropping its own colour.
+FATE_STYLE: dict[str, tuple[tuple[int, int, int], str]] = {
+    "physical": (_GREEN, "physical"),
+    "rescued": (_BLUE, "physical (stabilisation)"),
+    "split": (_PURPLE, "split mode, left out"),
+    "spurious": (_RED, "spurious by MDI"),
+    "not_detectable": (_ORANGE, "not detectable"),
+    "not_stabilised": ((140, 86, 75), "not stabilised"),
+    "mains_hum": ((85, 85, 85), "mains hum"),
+    "unstable": (_BLACK, "unstable"),
+    "out_of_band": ((170, 170, 170), "out of band"),
+}
+
 #: FRF series -> (colour, legend).
 FRF_STYLE: dict[str, tuple[tuple[int, int, int], str]] = {
     "measured": (_BLACK, "measured"),
@@ -269,7 +283,8 @@ def log_information_criterion(rec: rr.RecordingStream, orders: Any, criterion: A
 
 
 def log_mdi(rec: rr.RecordingStream, frequency_hz: Any, mdi: Any, kept: Any,
-            threshold: float | None, *, update: int | None = None) -> None:
+            threshold: float | None, *, fate: Sequence[str] | None = None,
+            update: int | None = None) -> None:
     """Modal dominancy index per pole (log axis) against pole frequency.
 
     Parameters
@@ -281,6 +296,9 @@ def log_mdi(rec: rr.RecordingStream, frequency_hz: Any, mdi: Any, kept: Any,
         True for poles kept by the reduction.
     threshold : float or None
         The MDI threshold, drawn as a horizontal line.
+    fate : sequence of str, optional
+        Each pole's fate (:data:`FATE_STYLE` keys: ``physical``, ``spurious``,
+        ``not_detectable``...): one series per fate. Without it, kept/removed.
     update : int, optional
         Identification update (shown in the title).
     """
@@ -291,10 +309,18 @@ def log_mdi(rec: rr.RecordingStream, frequency_hz: Any, mdi: Any, kept: Any,
     fx = Axis.fit("pole frequency (Hz)", freq, include=[0.0])
     panel = Panel("", _title("modal dominancy index (MDI) per pole", update), fx,
                   Axis.fit("MDI", val, log=True, include=thr))
-    for key, sel, color, label in (("kept", kept, _GREEN, "physical"),
-                                   ("removed", ~kept, _RED, "spurious")):
+    if fate is not None:
+        fates = np.asarray(list(fate), dtype=str).ravel()
+        # entity names: the kept and the MDI-removed poles keep their documented paths
+        # (paths.MDI_KEPT, paths.MDI_REMOVED); the other fates are named after themselves
+        entity = {"physical": "kept", "spurious": "removed"}
+        classes = [(entity.get(k, k), fates == k, *FATE_STYLE[k]) for k in FATE_STYLE]
+    else:
+        classes = [("kept", kept, _GREEN, "physical"), ("removed", ~kept, _RED, "spurious")]
+    for key, sel, color, label in classes:
+        # every class is logged, empty ones too: a fate an update no longer has is emptied
         panel.series.append(Series(key, f"{label} ({int(sel.sum())})", freq[sel], val[sel],
-                                   color, kind="points", width=3.5,
+                                   color, kind="points", width=3.5, legend=bool(sel.any()),
                                    values={"frequency_hz": freq[sel], "mdi": val[sel]}))
     tx = np.array([fx.lo, fx.hi]) if thr else np.zeros(0)
     panel.series.append(Series("threshold", f"threshold {threshold:.3g}" if thr else "threshold",

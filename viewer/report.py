@@ -31,6 +31,19 @@ STAB_STYLE: dict[str, tuple[str, str, str]] = {
     "unstable": ("#d55e00", "*", "unstable (zeta < 0)"),
 }
 FRF_STYLE = {"measured": "#282828", "model": "#e69f00", "underlying_linear": "#0072b2"}
+#: A pole's fate (ident.pole_fate) -> (colour, marker): kept ones filled, dropped ones open
+#: or crossed, each reason its own colour.
+FATE_STYLE: dict[str, tuple[str, str]] = {
+    "physical": ("#009e73", "o"),
+    "rescued": ("#0072b2", "s"),
+    "split": ("#cc79a7", "D"),
+    "spurious": ("#d55e00", "x"),
+    "not_detectable": ("#e69f00", "v"),
+    "not_stabilised": ("#8c564b", "^"),
+    "mains_hum": ("#555555", "*"),
+    "unstable": ("#000000", "+"),
+    "out_of_band": ("#aaaaaa", "."),
+}
 COEFF_COLOURS = ("#0072b2", "#d55e00", "#009e73", "#cc79a7", "#e69f00", "#56b4e9")
 
 
@@ -162,17 +175,32 @@ def summary_rows(result: Mapping[str, Any]) -> list[tuple[str, str]]:
     return rows
 
 
+def pole_fates(result: Mapping[str, Any]) -> list[str]:
+    """The fate of each row of the result's ``mdi`` table (``mdi[].fate``, or derived for
+    results written before it was recorded: :func:`ident.pole_fate.result_fates`)."""
+    from fnsi_lab.ident.pole_fate import result_fates
+
+    rows = result.get("mdi") or []
+    if rows and all("fate" in r for r in rows):
+        return [str(r["fate"]) for r in rows]
+    return result_fates(result)
+
+
 def mode_rows(result: Mapping[str, Any]) -> list[dict]:
     """Mode table: the in-band poles of the MDI order with their decisions (robust pipeline),
     else the modes of the answer."""
+    from fnsi_lab.ident.pole_fate import fate_label
+
     key = mdi_key(result)
-    rows = [r for r in result.get("mdi") or [] if r.get("in_band") or r.get("physical")]
+    fates = pole_fates(result)
+    rows = [dict(r, fate=fate) for r, fate in zip(result.get("mdi") or [], fates)
+            if r.get("in_band") or r.get("physical")]
     if rows:
         return [{"f (Hz)": f"{r['frequency_hz']:.4g}",
                  "zeta (%)": f"{100 * r['damping_ratio']:.3g}",
                  "MDI (relative)": f"{r[key]:.3g}" if r.get(key) is not None else "-",
                  "stabilisation": str(r.get("stabilisation") or "-"),
-                 "physical": "yes" if r.get("physical") else "no"} for r in rows]
+                 "fate": fate_label(r["fate"])} for r in rows]
     return [{"f (Hz)": f"{m['frequency_hz']:.4g}", "zeta (%)": f"{100 * m['damping_ratio']:.3g}",
              "stable": "yes" if m.get("stable") else "no"} for m in result.get("modes") or []]
 
@@ -257,14 +285,21 @@ def figure_criterion(result: Mapping[str, Any]) -> Any:
 
 def figure_mdi(result: Mapping[str, Any]) -> Any:
     """MDI of each pole of the MDI order against its frequency, physical and spurious apart."""
+    from fnsi_lab.ident.pole_fate import FATE_ORDER, fate_label
+
     key = mdi_key(result)
-    rows = [r for r in result.get("mdi") or [] if r.get(key) is not None and r[key] > 0]
-    fig, (ax,) = _figure(9.0, 3.6)
-    for phys, color, marker, label in ((True, "#009e73", "o", "physical"),
-                                       (False, "#d55e00", "x", "spurious (removed)")):
-        sel = [r for r in rows if bool(r.get("physical")) == phys]
+    rows = [dict(r, fate=fate) for r, fate in zip(result.get("mdi") or [], pole_fates(result))
+            if r.get(key) is not None and r[key] > 0]
+    fig, (ax,) = _figure(9.0, 4.2)
+    for fate in FATE_ORDER:
+        sel = [r for r in rows if r["fate"] == fate]
+        if not sel:
+            continue
+        color, marker = FATE_STYLE[fate]
+        filled = fate in ("physical", "rescued", "split")
         ax.semilogy([r["frequency_hz"] for r in sel], [r[key] for r in sel], marker,
-                    color=color, ms=6, ls="none", label=f"{label} ({len(sel)})")
+                    color=color, ms=7, ls="none", mfc=color if filled else "none",
+                    mew=1.5, label=f"{fate_label(fate)} ({len(sel)})", zorder=3)
     thr = result.get("threshold")
     if thr:
         ax.axhline(thr, color="#777777", lw=1.0, ls="--", label=f"threshold {thr:.3g}")
@@ -275,7 +310,7 @@ def figure_mdi(result: Mapping[str, Any]) -> Any:
     ax.set_ylabel(f"MDI ({key.removeprefix('mdi_')} norm, relative)")
     ax.set_title(f"Modal dominancy index per pole (order {result.get('mdi_order', '-')})")
     ax.grid(alpha=0.3, which="both")
-    ax.legend(fontsize=8)
+    fig.legend(loc="outside right upper", fontsize=8)  # beside the poles, not over them
     return fig
 
 
@@ -367,6 +402,17 @@ def figure_frf(result: Mapping[str, Any], output: str | None = None) -> Any | No
         ax.grid(alpha=0.3)
     mag.legend(fontsize=8)
     return fig
+
+
+def mdi_caption(result: Mapping[str, Any]) -> str:
+    """The MDI figure's caption: what each fate drawn means (only those present)."""
+    from fnsi_lab.ident.pole_fate import fate_caption
+
+    fates = [f for r, f in zip(result.get("mdi") or [], pole_fates(result))
+             if (r.get(mdi_key(result)) or 0) > 0]
+    return ("MDI of each pole at the MDI order, drawn by its fate (the same words as the "
+            "mode table and the terminal): " + fate_caption(fates)
+            + " The dashed line is the MDI threshold.")
 
 
 def svg(fig: Any) -> str:
@@ -500,8 +546,7 @@ def render_report(result: Mapping[str, Any], metadata: Mapping[str, Any] | None 
                            "information criterion against model order", "fig-criterion"),
               "<h2>Modal dominancy index</h2>",
               _figure_html(figure_mdi(result) if auto else None,
-                           "MDI of each pole at the MDI order; poles below the threshold "
-                           "are removed as spurious", "fig-mdi"),
+                           mdi_caption(result), "fig-mdi"),
               "<h2>Nonlinear coefficients</h2>", _table(coefficient_statistics(result)),
               _figure_html(figure_coefficients(result),
                            "coefficient spectra c_a(f): a physical coefficient is constant "
