@@ -221,7 +221,18 @@ class RecordAnalysis:
             "alpha": self.alpha, "n_tests": self.n_tests,
             "outputs": [o.to_dict(spectra) for o in self.outputs],
             "resonances": [r.to_dict() for r in self.resonances],
-            "notes": list(self.notes), "timings_s": dict(self.timings_s)}
+            "notes": list(self.notes), "timings_s": dict(self.timings_s),
+            **({"bla": self.bla_dict()} if spectra else {})}
+
+    def bla_dict(self) -> dict:
+        """The BLA per excited line: ``frequency_hz`` (F,), ``re``/``im`` (F, p), and the
+        variances of one realisation's FRF ``noise_var`` and ``total_var`` (F, p; null when
+        not measured)."""
+        return {"frequency_hz": self.frequency_hz.tolist(), "outputs": [o.name for o in
+                                                                        self.outputs],
+                "re": self.frf.real.tolist(), "im": self.frf.imag.tolist(),
+                "noise_var": self.frf_noise_var.tolist(),
+                "total_var": None if self.frf_total_var is None else self.frf_total_var.tolist()}
 
 
 # ----------------------------------------------------------------------------- lines

@@ -90,9 +90,14 @@ def test_linear_lab_simulation_is_linear_within_the_noise(tmp_path):
     paths = [_lab_duffing(0.0, 0.03, tmp_path, "linear"),
              _lab_duffing(0.0, 0.03, tmp_path, "quiet", hum_hz=None, hum_level=0.0)]
     out = tmp_path / "a.json"
-    r = _cli("analyse", *map(str, paths), "--json", str(out))
+    r = _cli("analyse", *map(str, paths), "--json", str(out), "--spectra")
     assert r.returncode == 0, r.stderr
     res = json.loads(out.read_text())
+    bla = res["records"][0]["bla"]
+    n_exc = res["records"][0]["excitation"]["n_excited"]
+    assert len(bla["frequency_hz"]) == len(bla["re"]) == len(bla["total_var"]) == n_exc
+    spectra = res["records"][0]["outputs"][0]["spectra"]
+    assert len(spectra["odd_hz"]) == res["records"][0]["excitation"]["n_odd_detection"]
     for rec in res["records"]:
         o = rec["outputs"][0]
         assert o["verdict"] == "linear within the noise" and o["nonlinear"] is False
