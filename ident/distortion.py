@@ -770,30 +770,13 @@ def analyse_arrays(u: np.ndarray, y: np.ndarray, sample_rate_hz: float,
     band_out_db = [_db(float(out_pow[:, o].mean())) for o in range(p)]
     outputs = []
     for o in range(p):
-        evidence = []
-        for kind, bins, wins in windows:
-            for idx, level, nlev, pv in wins:
-                span = bins[idx]
-                near = (sets.excited >= span.min()) & (sets.excited <= span.max())
-                o_db = (_db(float(out_pow[near, o].mean())) if np.any(near) else band_out_db[o])
-                in_band = bool(exc.min() <= span.mean() <= exc.max())
-                evidence.append(Evidence(kind, float(span.mean() * df),
-                                         (float(span.min() * df), float(span.max() * df)),
-                                         _db(float(level[o])), _db(float(nlev[o])), o_db,
-                                         float(pv[o]), bool(pv[o] < level_alpha), in_band))
+        evidence = _evidence(windows, sets, out_pow[:, o], band_out_db[o], df, o,
+                             level_alpha)
         verdict, flag = _verdict(evidence, bool(windows), Yvar is not None, sets.parity)
         levels = _output_levels(Ym, g_total, u_pow, sets, o)
-        spectra = {}
-        if keep_spectra:
-            spectra = {"excited_hz": sets.excited * df, "output_power": out_pow[:, o],
-                       "band_hz": sets.band * df, "noise_var": noise_all[:, o]}
-            for kind in ("odd", "even", "mixed"):
-                bins = getattr(sets, kind)
-                if bins.size:
-                    spectra[f"{kind}_hz"] = bins * df
-                    spectra[f"{kind}_power"] = (np.abs(Ym[:, bins, o]) ** 2).mean(axis=0)
-            if g_total is not None:
-                spectra["realisations_power"] = g_total[:, o] * u_pow
+        spectra = (_line_levels(sets, df, out_pow[:, o], noise_all[:, o], Ym[..., o],
+                                g_total[:, o] * u_pow if g_total is not None else None)
+                   if keep_spectra else {})
         outputs.append(OutputAnalysis(
             name=names[o], output_db=band_out_db[o],
             noise_db=_db(float(noise_all[quiet, o].mean())), verdict=verdict, nonlinear=flag,
@@ -810,6 +793,41 @@ def analyse_arrays(u: np.ndarray, y: np.ndarray, sample_rate_hz: float,
         frf_noise_var=g_noise if g_noise is not None else np.full(G.shape, np.nan),
         frf_total_var=g_total, alpha=float(alpha), n_tests=int(n_tests),
         timings_s={"spectra": t_fft - t0, "tests": t_end - t_fft, "total": t_end - t0})
+
+
+def _evidence(windows: list, sets: LineSets, out_pow: np.ndarray, band_out_db: float,
+              df: float, o: int, level_alpha: float) -> list[Evidence]:
+    """Every test window of output ``o`` as :class:`Evidence` (``out_pow`` (F,): its power
+    on the excited lines)."""
+    exc = sets.excited
+    evidence = []
+    for kind, bins, wins in windows:
+        for idx, level, nlev, pv in wins:
+            span = bins[idx]
+            near = (exc >= span.min()) & (exc <= span.max())
+            o_db = _db(float(out_pow[near].mean())) if np.any(near) else band_out_db
+            in_band = bool(exc.min() <= span.mean() <= exc.max())
+            evidence.append(Evidence(kind, float(span.mean() * df),
+                                     (float(span.min() * df), float(span.max() * df)),
+                                     _db(float(level[o])), _db(float(nlev[o])), o_db,
+                                     float(pv[o]), bool(pv[o] < level_alpha), in_band))
+    return evidence
+
+
+def _line_levels(sets: LineSets, df: float, out_pow: np.ndarray, noise_var: np.ndarray,
+                 Ym: np.ndarray, realisations: np.ndarray | None) -> dict[str, np.ndarray]:
+    """Per-line levels of one output for the plots (``OutputAnalysis.spectra``); ``Ym``
+    (R, n_bins) its period averages."""
+    spectra = {"excited_hz": sets.excited * df, "output_power": out_pow,
+               "band_hz": sets.band * df, "noise_var": noise_var}
+    for kind in ("odd", "even", "mixed"):
+        bins = getattr(sets, kind)
+        if bins.size:
+            spectra[f"{kind}_hz"] = bins * df
+            spectra[f"{kind}_power"] = (np.abs(Ym[:, bins]) ** 2).mean(axis=0)
+    if realisations is not None:
+        spectra["realisations_power"] = realisations
+    return spectra
 
 
 def _bla_relative_std(G: np.ndarray, g_noise: np.ndarray | None,
