@@ -1,0 +1,122 @@
+"""Aircraft-like GVT: linear vs nonlinear answers per level, and validation on another level.
+
+Run::
+
+    python bench/aircraft_validation.py                  # 7 levels, about 2-3 minutes
+    python bench/aircraft_validation.py --levels 12 55 98
+
+Steps (the same entry points as the command line):
+
+1. the campaign of ``bench/aircraft.py`` (one realisation per level) into ``--work``;
+2. per level ``fnsi_lab.identify`` (robust pipeline, ``--auto``) with ``aircraft-linear.yaml``
+   and with ``aircraft-joint.yaml`` (Coulomb + cubic on ``wing - payload``);
+3. the physical modes of both answers matched to the truth's stuck-joint modes (within
+   4 %): level invariance of the underlying linear modes;
+4. ``fnsi_lab.validate_model``: each level's two answers simulated on the *next* level's
+   record (the highest level on the one below): per output the error of the nonlinear
+   model, of its underlying linear model, and of the linear fit, dB below the output.
+
+Writes ``bench/out/aircraft_validation.json``; the tables go to ``bench/RESULTS.md`` by hand.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent
+sys.path.insert(0, str(ROOT))
+
+
+def _modes(result, truth_hz: np.ndarray) -> dict[float, float]:
+    """Physical modes matched to the nearest truth mode within 4 %: {truth Hz: found Hz}."""
+    out = {}
+    for m in result.modes:
+        f = m["frequency_hz"]
+        i = int(np.argmin(np.abs(truth_hz - f)))
+        if abs(truth_hz[i] - f) < 0.04 * truth_hz[i] and truth_hz[i] not in out:
+            out[float(truth_hz[i])] = float(f)
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    import fnsi_lab
+    from aircraft import write_campaign
+    from fnsi_lab.daq.sim.aircraft import LEVELS_N_RMS, aircraft_model
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--levels", type=float, nargs="+", default=list(LEVELS_N_RMS))
+    ap.add_argument("--work", type=Path, default=ROOT / "out" / "aircraft-gvt")
+    args = ap.parse_args(argv)
+    rows = write_campaign(args.work, args.levels, force=True)
+    truth = aircraft_model().structure.modes.frequency_hz
+    truth = truth[(truth > 2) & (truth < 15)]
+    answers = {}
+    for row in rows:
+        path = args.work / row["file"]
+        for kind in ("linear", "joint"):
+            t0 = time.perf_counter()
+            res = fnsi_lab.identify(str(path), config=str(args.work / f"aircraft-{kind}.yaml"))
+            answers[(row["level_n_rms"], kind)] = res
+            print(f"{row['level_n_rms']:5g} N {kind:6s}: order {res.order}, "
+                  f"{len(res.modes)} physical modes, {time.perf_counter() - t0:.1f} s",
+                  file=sys.stderr)
+    levels = [r["level_n_rms"] for r in rows]
+    table = []
+    for i, row in enumerate(rows):
+        level = row["level_n_rms"]
+        other = rows[i + 1] if i + 1 < len(rows) else rows[i - 1]
+        lin, nl = answers[(level, "linear")], answers[(level, "joint")]
+        entry = {"level_n_rms": level, "validated_on_n_rms": other["level_n_rms"],
+                 "linear": {"order": lin.order, "modes": _modes(lin, truth),
+                            "damping": {float(m["frequency_hz"]): m["damping_ratio"]
+                                        for m in lin.modes}},
+                 "nonlinear": {"order": nl.order, "modes": _modes(nl, truth),
+                               "coefficients": [{k: c.get(k) for k in
+                                                 ("name", "value", "std_real", "verdict")}
+                                                for c in nl.coefficients]},
+                 "run": {k: row.get(k) for k in ("slip_m", "friction_energy_j",
+                                                 "contact_fraction", "period_difference_last")}}
+        for kind, res in (("linear", lin), ("nonlinear", nl)):
+            try:
+                v = fnsi_lab.validate_model(res, args.work / other["file"])
+                entry[kind]["validation"] = {"converged": v.converged, "outputs": v.outputs}
+            except Exception as exc:  # noqa: BLE001 - a failed validation is a result here
+                entry[kind]["validation"] = {"error": str(exc)}
+        table.append(entry)
+    out = ROOT / "out" / "aircraft_validation.json"
+    out.parent.mkdir(exist_ok=True)
+    from fnsi_lab.outputs import dumps
+
+    out.write_text(dumps({"truth_modes_hz": truth, "levels": levels, "table": table}, indent=2))
+    print("truth (stuck joint):", " ".join(f"{f:.2f}" for f in truth))
+    for e in table:
+        lin, nl = e["linear"], e["nonlinear"]
+
+        def val(v, key):
+            outs = v.get("validation", {}).get("outputs")
+            if not outs or outs[0].get(key) is None:
+                return "-"
+            return "/".join(f"{o[key]:+.1f}" for o in outs)
+
+        print(f"{e['level_n_rms']:5g} N | lin order {lin['order']:2d} modes {len(lin['modes'])} "
+              f"| nl order {nl['order']:2d} modes {len(nl['modes'])} | "
+              + " ".join(f"{c['name']}={c['value']:.3g}({c.get('verdict') or '?'})"
+                         for c in nl["coefficients"])
+              + f" | on {e['validated_on_n_rms']:g} N: nl {val(nl, 'error_db')}, "
+                f"its linear {val(nl, 'linear_error_db')}, linear fit {val(lin, 'linear_error_db')}")
+        for f0 in truth:
+            a, b = lin["modes"].get(float(f0)), nl["modes"].get(float(f0))
+            print(f"        {f0:6.2f} Hz: linear {a if a is None else round(a, 3)}, "
+                  f"nonlinear {b if b is None else round(b, 3)}")
+    print(f"wrote {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
