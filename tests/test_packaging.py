@@ -59,7 +59,8 @@ def test_wheel_holds_only_fnsi_lab_and_its_data(wheel):
     tops = {n.split("/", 1)[0] for n in names}
     assert tops == {"fnsi_lab", next(t for t in tops if t.endswith(".dist-info"))}
     for data in ("fnsi_lab/ident/data/smallsat39.yaml", "fnsi_lab/ident/data/smallsat3.yaml",
-                 "fnsi_lab/daq/data/smallsat.yaml", "fnsi_lab/daq/data/example_can.dbc"):
+                 "fnsi_lab/daq/data/smallsat.yaml", "fnsi_lab/daq/data/example_can.dbc",
+                 "fnsi_lab/py.typed"):   # PEP 561: the type hints are for users' checkers
         assert data in names, data
 
 
