@@ -21,7 +21,10 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Any, Mapping
+from typing import TYPE_CHECKING, Any, Mapping
+
+if TYPE_CHECKING:   # imported on first use (module __getattr__ below): a light `import fnsi_lab`
+    from fnsi_lab.ident.pipeline import Identification
 
 __all__ = ["identify", "analyse", "open_recording", "acquire", "load_config", "Identification"]
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 import time
 import warnings
 from dataclasses import dataclass, field
+from typing import cast
 
 import numpy as np
 import scipy.linalg as sla
@@ -274,6 +275,7 @@ def _inverse_covariance(data: FrequencyData, weighted: bool) -> np.ndarray | Non
         return cache["inv_cov"]
     var = np.real(cov if cov.ndim == 2 else np.einsum("kii->ki", cov))  # (F, p) variances only
     mean_var = float(np.mean(var))
+    q: np.ndarray | None
     if not mean_var > 0:
         q = None
     else:
@@ -581,7 +583,7 @@ def merge_repeated_lines(z: np.ndarray, lines: np.ndarray, E: np.ndarray, Y: np.
         return z, E, Y
     order = np.argsort(inv, kind="stable")
     A = np.hstack([E, Y])[order].conj().reshape(first.size, R, q)     # D_k^H per line
-    Rk = np.linalg.qr(A, mode="r")                                     # (F_u, q, q)
+    Rk = _qr_r(A)                                                      # (F_u, q, q)
     X = Rk.conj().reshape(first.size * q, q)                           # rows: columns of R_k^H
     return np.repeat(z[first], q), X[:, :m_e], X[:, m_e:]
 
@@ -716,6 +718,12 @@ def significant_input_basis(Me: np.ndarray, tol: float = INPUT_RANK_TOL) -> np.n
     return U[:, sv > tol * sv[0]]
 
 
+def _qr_r(a: np.ndarray) -> np.ndarray:
+    """``R`` of the QR decomposition of ``a`` (stacked over leading axes): numpy's stubs
+    type every mode of ``qr`` as the ``(Q, R)`` result; ``mode='r'`` returns ``R`` alone."""
+    return cast(np.ndarray, np.linalg.qr(a, mode="r"))
+
+
 def _truncated_input_residual(MT: np.ndarray, n_in: int) -> np.ndarray:
     """``L22`` (lower triangular, ``(n_y, n_y)``) of ``MT = [Me, My]`` with ``My`` projected
     out of the significant input space only (:func:`significant_input_basis`)."""
@@ -723,7 +731,7 @@ def _truncated_input_residual(MT: np.ndarray, n_in: int) -> np.ndarray:
     U = significant_input_basis(Me)
     R = My - U @ (U.T @ My)
     R = R - U @ (U.T @ R)          # twice is enough (Kahan-Parlett reorthogonalisation)
-    r = np.linalg.qr(R, mode="r")
+    r = _qr_r(R)
     out = np.zeros((My.shape[1], My.shape[1]))
     out[:r.shape[0]] = r
     return out.T
@@ -949,6 +957,8 @@ def subspace_decomposition(data: FrequencyData, *, max_order: int, block_rows: i
     if L22 is not None:
         U, S, _ = np.linalg.svd(L22 if cy_sqrt is None else cy_isqrt @ L22)
     else:  # only the leading directions an order of the sweep can use (and a margin)
+        if S22 is None:   # every method but 'qr' leaves its Gram form
+            raise IdentError(f"subspace method {method!r} left no residual Gram matrix")
         K = S22 if cy_sqrt is None else cy_isqrt @ S22 @ cy_isqrt
         k = min((i - 1) * p, 2 * max_order + 20)
         ev, U = sla.eigh(0.5 * (K + K.T), subset_by_index=(K.shape[0] - k, K.shape[0] - 1),
@@ -1522,6 +1532,8 @@ def compute_poles(a_d: np.ndarray, c_d: np.ndarray, sample_rate_hz: float, *,
     if time_base not in TIME_BASES:
         raise IdentError(f"time_base {time_base!r} is not one of {list(TIME_BASES)}")
     if time_base == "bilinear":  # lambda = (2/T) (mu - 1) / (mu + 1); mu = -1 -> infinity
+        if bilinear_period_s is None:
+            raise IdentError("time_base 'bilinear' needs bilinear_period_s")
         alpha = 2.0 / float(bilinear_period_s)
         with np.errstate(divide="ignore", invalid="ignore"):
             lam = alpha * (mu - 1) / (mu + 1)

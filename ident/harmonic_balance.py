@@ -29,7 +29,7 @@ period divided by ``N``, as ``FrequencyData.Y``).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import scipy.fft as sfft
@@ -81,12 +81,42 @@ class BalanceState:
     H: np.ndarray
     iterations: int
     residual: float
-    _slopes: np.ndarray | None = None        # (R, Nc, s) spectra of dh/d(argument)
-    _slopes_t: np.ndarray | None = None      # (R, Nc, s) the same on the convolution grid
-    _strong: list | None = None              # per realisation: index array of strong lines
-    _lu: list | None = None                  # per realisation: LU of (I - T) on strong lines
-    _weak_diagonal: list | None = None       # per realisation: (F0, n_el, n_el) mean-slope blocks
-    _loop_gain: np.ndarray | None = None     # (F0, n_el, s) Lambda G_h of the linearisation
+    _linear: _Linearisation | None = None               # set by HarmonicBalance.linearise
+    _preconditioner: _Preconditioner | None = None      # from this or a nearby state
+
+    @property
+    def linearisation(self) -> _Linearisation:
+        """The linearisation at this state (:meth:`HarmonicBalance.linearise`)."""
+        if self._linear is None:
+            raise BalanceError("the balance state is not linearised "
+                               "(HarmonicBalance.linearise first)")
+        return self._linear
+
+    @property
+    def preconditioner(self) -> _Preconditioner:
+        """The strong lines' LU (:meth:`HarmonicBalance.linearise`)."""
+        if self._preconditioner is None:
+            raise BalanceError("the balance state has no preconditioner "
+                               "(HarmonicBalance.linearise first)")
+        return self._preconditioner
+
+
+@dataclass(frozen=True)
+class _Linearisation:
+    """The balance linearised at one state: ``T = Lambda G_h C``."""
+
+    slopes: np.ndarray               # (R, Nc, s) spectra of dh/d(argument)
+    slopes_t: np.ndarray             # (R, Nc, s) the same on the convolution grid
+    weak_diagonal: list[np.ndarray]  # per realisation: (F0, n_el, n_el) mean-slope blocks
+    loop_gain: np.ndarray            # (F0, n_el, s) Lambda G_h of the linearisation
+
+
+@dataclass(frozen=True)
+class _Preconditioner:
+    """The strong lines' exact coupling, per realisation (reused by nearby states)."""
+
+    strong: list[np.ndarray]                  # index arrays of the strong lines
+    lu: list[tuple[np.ndarray, np.ndarray]]   # LU of the real form of (I - T) on them
 
 
 class HarmonicBalance:
@@ -156,16 +186,21 @@ class HarmonicBalance:
         self.to_displacement = 1.0 / (1j * self.omega_lines) ** t
         #: (F0,) the model's frequency variable on the predicted lines (the data's line map)
         if data.time_base == "bilinear":
-            self.z = np.exp(2j * np.arctan(self.omega_lines * data.bilinear_period_s / 2))
-            rate = float(data.bilinear_period_s)           # dz / d(j w) at 0
+            period_s = data.bilinear_period_s
+            if period_s is None:
+                raise IdentError("time_base 'bilinear' needs bilinear_period_s")
+            self.z = np.exp(2j * np.arctan(self.omega_lines * period_s / 2))
+            rate = float(period_s)                         # dz / d(j w) at 0
         else:
             self.z = np.exp(2j * np.pi * self.K / self.N)
             rate = 1.0 / self.fs
         #: (F0,) bool: the predicted lines under the band (None: none)
-        self.low_lines = np.isin(self.K, below) if below.size else None
+        low_lines = np.isin(self.K, below) if below.size else None
+        self.low_lines = low_lines
         #: where the model is read less its static terms (None: nowhere)
-        self.low = (LowFrequency(mask=self.low_lines, jw=1j * self.omega_lines,
-                                 rate=rate, order=t) if below.size and t > 0 else None)
+        self.low = (LowFrequency(mask=low_lines, jw=1j * self.omega_lines,
+                                 rate=rate, order=t) if low_lines is not None and t > 0
+                    else None)
         # the forces: measured on the processed lines, none under the band (not excited)
         self.U = np.zeros((self.R, self.F0, self.m), complex)
         self.U[:, self.data_index] = data.E[:, :self.m].reshape(self.R, -1, self.m)
@@ -270,6 +305,7 @@ class HarmonicBalance:
         complex ndarray, shape (R, F0, s, n)
         """
         n = d_delta.shape[3]
+        slopes_t = state.linearisation.slopes_t
         out = np.empty((self.R, self.F0, self.s, n), complex)
         spec = np.zeros((self.Nc // 2 + 1, n), complex)
         for r in range(self.R):
@@ -280,7 +316,7 @@ class HarmonicBalance:
                     w = 1j * self.omega_lines[:, None] if key[1] else 1.0
                     spec[self.K] = d_delta[r, :, key[0], :] * (w * self.Nc)
                     x[key] = sfft.irfft(spec, n=self.Nc, axis=0)
-                prod = state._slopes_t[r, :, a, None] * x[key]
+                prod = slopes_t[r, :, a, None] * x[key]
                 out[r, :, a, :] = sfft.rfft(prod, axis=0)[self.K] / self.Nc
         return out
 
@@ -340,18 +376,20 @@ class HarmonicBalance:
         :meth:`solve_linear` renews it when GMRES slows down.
         """
         basis = self.basis if basis is None else tuple(basis)
-        state._slopes = self._slope_spectra(state.delta, basis)
-        state._slopes_t = sfft.ifft(state._slopes, axis=1).real * self.Nc
-        state._loop_gain = loop_gain
-        state._weak_diagonal = [self._mean_slope_block(state._slopes[r], loop_gain)
-                                for r in range(self.R)]
-        if preconditioner or state._lu is None:
+        slopes = self._slope_spectra(state.delta, basis)
+        state._linear = _Linearisation(
+            slopes=slopes, slopes_t=sfft.ifft(slopes, axis=1).real * self.Nc,
+            weak_diagonal=[self._mean_slope_block(slopes[r], loop_gain) for r in range(self.R)],
+            loop_gain=loop_gain)
+        if preconditioner or state._preconditioner is None:
             self._renew_preconditioner(state)
 
     def _renew_preconditioner(self, state: BalanceState) -> None:
-        state._strong = [self._strong_lines(state.delta[r]) for r in range(self.R)]
-        state._lu = [self._loop_lu(state._slopes[r], state._strong[r], state._loop_gain)
-                     for r in range(self.R)]
+        linear = state.linearisation
+        strong = [self._strong_lines(state.delta[r]) for r in range(self.R)]
+        state._preconditioner = _Preconditioner(
+            strong=strong, lu=[self._loop_lu(linear.slopes[r], strong[r], linear.loop_gain)
+                               for r in range(self.R)])
 
     def _precondition(self, state: BalanceState, v: np.ndarray) -> np.ndarray:
         """The block lower-triangular inverse: exact on the strong lines' mutual coupling; the
@@ -359,10 +397,11 @@ class HarmonicBalance:
         (``I - Lambda G_h F(0)``, the average contact stiffness), not their mutual coupling."""
         x = v.copy()
         ne = self.n_el
+        pre = state.preconditioner
         for r in range(self.R):
-            S = state._strong[r]
+            S = pre.strong[r]
             vs = v[r, S].transpose(1, 0, 2).reshape(ne * S.size, -1)   # element-major
-            sol = sla.lu_solve(state._lu[r], np.concatenate([vs.real, vs.imag]),
+            sol = sla.lu_solve(pre.lu[r], np.concatenate([vs.real, vs.imag]),
                                check_finite=False)
             xs = sol[:ne * S.size] + 1j * sol[ne * S.size:]
             x[r] = 0.0
@@ -370,14 +409,15 @@ class HarmonicBalance:
         feed = self._loop(state, x)
         for r in range(self.R):
             weak = np.ones(self.F0, bool)
-            weak[state._strong[r]] = False
-            x[r, weak] = np.linalg.solve(state._weak_diagonal[r][weak],
+            weak[pre.strong[r]] = False
+            x[r, weak] = np.linalg.solve(state.linearisation.weak_diagonal[r][weak],
                                          v[r, weak] + feed[r, weak])
         return x
 
     def _loop(self, state: BalanceState, x: np.ndarray) -> np.ndarray:
         """``T x = Lambda G_h C x``, shapes (R, F0, n_el, n)."""
-        return np.einsum("kes,rksn->rken", state._loop_gain, self.apply_slopes(state, x))
+        return np.einsum("kes,rksn->rken", state.linearisation.loop_gain,
+                         self.apply_slopes(state, x))
 
     def solve_linear(self, state: BalanceState, v: np.ndarray, tolerance: float = 1e-6,
                      max_iterations: int = 30) -> np.ndarray:
@@ -446,7 +486,7 @@ class HarmonicBalance:
         scale = max(float(np.linalg.norm(delta)), 1e-300)
         state = BalanceState(delta=delta, H=np.empty(0), iterations=0, residual=np.inf)
         if start is not None:   # its preconditioner serves nearby models too
-            state._strong, state._lu = start._strong, start._lu
+            state._preconditioner = start._preconditioner
         if self._newton(state, linear, loop_gain, basis, scale, tolerance, max_iterations):
             return state
         if start is None:
@@ -462,7 +502,8 @@ class HarmonicBalance:
                 if not done:
                     break
             else:
-                state._loop_gain = loop_gain
+                if state._linear is not None:   # the last share's linearisation, full gain
+                    state._linear = replace(state._linear, loop_gain=loop_gain)
                 state.iterations = total
                 return state
         raise BalanceError(f"the harmonic balance of the model did not converge "

@@ -22,6 +22,7 @@ MATLAB ``.mat``); this module only validates arrays. The array format
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from functools import partial
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
@@ -138,10 +139,11 @@ def input_from_arrays(arrays: Mapping[str, Any], path: str = "",
         if "realization_starts" in arrays:   # one long record, several realisations
             if N is None or u.ndim != 2:
                 raise IdentError("realization_starts needs N and 2-D u, y (n_samples, channels)")
-            cut = dict(starts=np.asarray(arrays["realization_starts"]).reshape(-1),
-                       samples_per_period=N,
-                       transient_samples=int(np.asarray(arrays.get("transient_samples", 0))))
-            u, y = cut_realizations(u, **cut), cut_realizations(y, **cut)
+            cut = partial(cut_realizations,
+                          starts=np.asarray(arrays["realization_starts"]).reshape(-1),
+                          samples_per_period=N,
+                          transient_samples=int(np.asarray(arrays.get("transient_samples", 0))))
+            u, y = cut(u), cut(y)
         u4 = as_periodic(u, N, "u")
         y4 = as_periodic(y, N, "y")
     except IdentError as exc:

@@ -304,7 +304,8 @@ def mains_outlier_lines(Y: np.ndarray, U: np.ndarray, excited_lines: np.ndarray,
             zone = np.arange(int(np.ceil(f_h / df - half)), int(np.floor(f_h / df + half)) + 1)
             zone = zone[(zone > 0) & (zone < n_bins - 1)]
             at = zone[np.isin(zone, inner)] if jump is not None else zone[:0]
-            hit = bool(at.size) and bool(np.any(jump[:, np.searchsorted(inner, at)] > ratio))
+            hit = (jump is not None and bool(at.size)
+                   and bool(np.any(jump[:, np.searchsorted(inner, at)] > ratio)))
             beyond = zone[np.isin(zone, kept) & ~np.isin(zone, exc)
                           & ((zone < exc.min()) | (zone > exc.max()))]
             side = np.r_[max(zone[0] - half_width, 1):zone[0],

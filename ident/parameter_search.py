@@ -52,6 +52,7 @@ import os
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -144,6 +145,20 @@ class Unknown:
     def log_spaced(self) -> bool:
         """Scanned on a log scale: a positive interval of a parameter known relative to itself."""
         return self.parameter != "offset" and self.interval is not None and self.interval[0] > 0
+
+    @property
+    def bounds(self) -> tuple[float, float]:
+        """The search interval of a continuous parameter."""
+        if self.interval is None:
+            raise IdentError(f"{self.label}: a discrete parameter has no search interval")
+        return self.interval
+
+    @property
+    def choices(self) -> tuple[float, ...]:
+        """The candidates of a discrete parameter."""
+        if self.candidates is None:
+            raise IdentError(f"{self.label}: a continuous parameter has no candidates")
+        return self.candidates
 
     def magnitude(self, value):
         """``|value|``, or the offset's length scale where that is larger (array-friendly)."""
@@ -354,7 +369,7 @@ def _offset_space(element: int, nl: Nonlinearity, interval: tuple[float, float] 
 
 
 def _resolve(basis: Sequence[Nonlinearity], unknowns: Sequence[Unknown],
-             values: Sequence[float]) -> tuple[Nonlinearity, ...]:
+             values: Sequence[float] | np.ndarray) -> tuple[Nonlinearity, ...]:
     per: dict[int, dict[str, float]] = {}
     for u, v in zip(unknowns, values):
         per.setdefault(u.element, {})[u.parameter] = float(v)
@@ -451,7 +466,7 @@ class MotionNoise:
         motion = data.motion
         S = None if motion is None else (motion.line_noise if integrated
                                          else motion.noise_spectrum)
-        if S is None:
+        if motion is None or S is None:
             raise IdentError("these frequency data hold no noise spectrum of the motion "
                              "(displacement outputs and at least 2 periods are needed)")
         self.motion = motion
@@ -519,9 +534,9 @@ class MotionNoise:
             conv = np.fft.ifft(np.fft.fft(W, axis=1) * self.S_fft[i], axis=1)[:, lines]
             cov[:, :, a, b] = conv
             cov[:, :, b, a] = np.conj(conv)
-        cov = cov.reshape(-1, s, s)                                # (F, s, s)
+        cov_lines = cov.reshape(-1, s, s)                          # (F, s, s)
         G = G_basis
-        variance = np.einsum("kpa,kab,kpb->kp", G, cov, G.conj(), optimize=True).real
+        variance = np.einsum("kpa,kab,kpb->kp", G, cov_lines, G.conj(), optimize=True).real
         if self.cross is None:
             return np.maximum(variance, 0.0), variance
         mean_slope = F[:, 0, :].real                               # (R, s)
@@ -626,25 +641,39 @@ def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity]
     order, the criterion's order at the intervals' centres (8 for a 3-DOF chain of order 6)
     once led the scan to a wrong valley that no scan point at a lower end revealed.
     """
-    kwargs = dict(order=order, d_zero=d_zero, block_rows=block_rows, weighted=weighted,
-                  grid_points=grid_points, max_relative_std=max_relative_std,
-                  min_margin=min_margin, profile_offsets=profile_offsets,
-                  noise_correction=noise_correction, select_order=select_order,
-                  workers=workers, progress=progress)
+    search = partial(_search, data, basis, order=order, d_zero=d_zero, block_rows=block_rows,
+                     weighted=weighted, grid_points=grid_points,
+                     max_relative_std=max_relative_std, min_margin=min_margin,
+                     profile_offsets=profile_offsets, noise_correction=noise_correction,
+                     select_order=select_order, workers=workers, progress=progress)
+    restarted: bool | None   # whether the refused search tried the second start (None: unknown)
     try:
-        return _search(data, basis, **kwargs)
+        return search()
+    except _StartRefused as exc:
+        refusal, restarted = exc.refusal, exc.restarted
     except NotIdentifiableError as exc:
-        refusal = exc
-    if not getattr(refusal, "restarted", True):   # the second start not tried yet
+        refusal, restarted = exc, None
+    if restarted is False:   # the second start not tried yet
         try:
-            return _search(data, basis, force_restart=True, **kwargs)
-        except NotIdentifiableError:
+            return search(force_restart=True)
+        except (_StartRefused, NotIdentifiableError):
             pass
-    if select_order and hasattr(refusal, "restarted"):
+    if select_order and restarted is not None:
         # the order came from the criterion, which wanders while the basis is wrong
         raise NotIdentifiableError(f"{refusal}; or give the structure's model order "
                                    "(order: in the configuration, --order)") from None
     raise refusal
+
+
+class _StartRefused(Exception):
+    """:func:`_search` refused its estimate (``refusal``, the error a user sees) after the
+    second start was tried (``restarted``) or not; :func:`estimate_basis_parameters` decides
+    whether to retry, and raises ``refusal`` itself."""
+
+    def __init__(self, refusal: NotIdentifiableError, restarted: bool) -> None:
+        super().__init__(str(refusal))
+        self.refusal = refusal
+        self.restarted = restarted
 
 
 def _search(data: FrequencyData, basis: Sequence[Nonlinearity], *, order: int, d_zero: bool,
@@ -654,8 +683,8 @@ def _search(data: FrequencyData, basis: Sequence[Nonlinearity], *, order: int, d
             progress: Callable[[str], None] | None, force_restart: bool = False
             ) -> ParameterSearchResult:
     """:func:`estimate_basis_parameters` from one start; ``force_restart``: the second start
-    is tried whatever the first scan gave. A refusal carries ``restarted`` (whether the
-    second start was tried)."""
+    is tried whatever the first scan gave. A refusal of the estimate comes as
+    :class:`_StartRefused` (with whether the second start was tried)."""
     t0 = time.perf_counter()
     integrated = data.output_quantity
     if integrated != "displacement":
@@ -720,6 +749,8 @@ def _search(data: FrequencyData, basis: Sequence[Nonlinearity], *, order: int, d
         if W is None:
             v = float(np.sum(r2)) / y_energy
             return v, v
+        if noise_model is None:   # set_weights needs it: weights without it are a bug
+            raise IdentError("noise-weighted objective without the motion noise model")
         _, bias = noise_model.terms(fit.G_basis, resolved)
         wy, offset = weighted_scale
         return (float(np.sum(W * (r2 - bias))) + offset) / wy, float(np.sum(W * r2)) / wy
@@ -729,13 +760,17 @@ def _search(data: FrequencyData, basis: Sequence[Nonlinearity], *, order: int, d
         ``vals`` (scaled per output), held fixed while the parameters move (the expected
         share of the motion noise is subtracted, not divided out: a weight that follows the
         parameters would reward candidates that inflate it)."""
+        noise_var = data.noise_var
+        if noise_model is None or noise_var is None:   # `correct` requires both
+            raise IdentError("the noise correction needs the motion noise model and the "
+                             "output noise variance")
         resolved, fit = fit_at(vals)
         variance, bias = noise_model.terms(fit.G_basis, resolved)
         # times each output's mean noise variance: the weights follow the motion noise
         # along the lines but keep the outputs' relative scale of the plain model error
         # (1/noise across 39 SmallSat outputs made the objective a needle around the gaps,
         # and the search stopped at -8 % / -11 % with 6 noisy periods)
-        W = np.mean(data.noise_var, axis=0) / (data.noise_var + variance)
+        W = np.mean(noise_var, axis=0) / (noise_var + variance)
         weights[0] = W
         # the share removed at this point is added back as a constant: the corrected
         # objective then reads like a weighted model error (positive, log-plottable) and
@@ -874,9 +909,9 @@ def _search(data: FrequencyData, basis: Sequence[Nonlinearity], *, order: int, d
                 except np.linalg.LinAlgError:
                     std[cont] = np.inf
             for k in disc if cont else ():     # the continuous ones moved: choose again
-                vs = objectives([_fill_one(values, k, g) for g in unknowns[k].candidates])
-                values[k] = unknowns[k].candidates[int(np.argmin(vs))]
-                scans[k] = (np.asarray(unknowns[k].candidates), vs)
+                vs = objectives([_fill_one(values, k, g) for g in unknowns[k].choices])
+                values[k] = unknowns[k].choices[int(np.argmin(vs))]
+                scans[k] = (np.asarray(unknowns[k].choices), vs)
     if (correct and cont) or rescan:  # profiles and margins in the objective minimised
         saved = values.copy()
         for k, u in enumerate(unknowns):
@@ -894,7 +929,7 @@ def _search(data: FrequencyData, basis: Sequence[Nonlinearity], *, order: int, d
     for k, u in enumerate(unknowns):
         grid, vs = scans[k]
         if u.continuous:
-            lo, hi = u.interval
+            lo, hi = u.bounds
             local = values[k] + u.magnitude(values[k]) * np.array(profile_offsets)
             local = local[(local >= lo) & (local <= hi)]
             lv = objectives([_fill_one(values, k, g) for g in local])
@@ -915,9 +950,8 @@ def _search(data: FrequencyData, basis: Sequence[Nonlinearity], *, order: int, d
                                 noise_corrected=correct and u.continuous, roughness=roughness)
         try:
             _refuse_if_unclear(est, basis[u.element], max_relative_std, min_margin)
-        except NotIdentifiableError as refusal:
-            refusal.restarted = restarted_at_all   # estimate_basis_parameters may retry
-            raise
+        except NotIdentifiableError as refusal:   # estimate_basis_parameters may retry
+            raise _StartRefused(refusal, restarted_at_all) from None
         estimates.append(est)
     noise_notes = [
         f"nonlinearity {e.unknown.name!r}: {e.unknown.parameter} = {e.value:.4g} was "
@@ -1019,10 +1053,11 @@ def _parallel_map(fn, items: list, workers: int) -> list:
 
 def _motion_noise_std(data: FrequencyData, nl: Nonlinearity) -> float | None:
     """Per-sample noise std of the averaged ``L^T q`` of an element (None if unknown)."""
-    cov = data.motion.noise_cov if data.motion is not None else None
-    if cov is None:
+    motion = data.motion
+    cov = motion.noise_cov if motion is not None else None
+    if motion is None or cov is None:
         return None
-    L = nl.location_vector(data.motion.channels)
+    L = nl.location_vector(motion.channels)
     return float(np.sqrt(max(L @ cov @ L, 0.0)))
 
 
@@ -1051,7 +1086,7 @@ def _stops_open(unknowns: Sequence[Unknown], values: np.ndarray) -> np.ndarray |
         return None
     out = values.copy()
     for k in reach:
-        out[k] = unknowns[k].interval[1]
+        out[k] = unknowns[k].bounds[1]
     return out
 
 
@@ -1085,15 +1120,16 @@ def _initial(u: Unknown) -> float:
     """Starting value: centre of the interval (geometric if log-spaced), or 3 (a cubic)
     among the candidates."""
     if u.continuous:
-        lo, hi = u.interval
+        lo, hi = u.bounds
         return float(np.sqrt(lo * hi)) if u.log_spaced else 0.5 * (lo + hi)
-    return 3.0 if 3.0 in u.candidates else float(u.candidates[len(u.candidates) // 2])
+    candidates = u.choices
+    return 3.0 if 3.0 in candidates else float(candidates[len(candidates) // 2])
 
 
 def _grid(u: Unknown, n: int) -> np.ndarray:
     if not u.continuous:
-        return np.asarray(u.candidates, float)
-    lo, hi = u.interval
+        return np.asarray(u.choices, float)
+    lo, hi = u.bounds
     return np.geomspace(lo, hi, n) if u.log_spaced else np.linspace(lo, hi, n)
 
 
@@ -1187,8 +1223,8 @@ def _on_continuous(objectives, values: np.ndarray, cont: Sequence[int],
     """``(lo, hi, f_many, magnitude)``: the intervals of the continuous parameters ``cont``,
     the objective as a function of them alone (the other parameters held at ``values``) and
     their magnitudes (:meth:`Unknown.magnitude`) as a function of their values."""
-    lo = np.array([unknowns[k].interval[0] for k in cont])
-    hi = np.array([unknowns[k].interval[1] for k in cont])
+    lo = np.array([unknowns[k].bounds[0] for k in cont])
+    hi = np.array([unknowns[k].bounds[1] for k in cont])
 
     def magnitude(x):
         return np.array([unknowns[k].magnitude(v) for k, v in zip(cont, x)], float)
@@ -1273,7 +1309,7 @@ def _refuse_if_unclear(est: ParameterEstimate, nl: Nonlinearity, max_relative_st
     fix = ("give it in the configuration, change the search " +
            ("interval" if u.continuous else "candidates") + ", or excite harder")
     if u.continuous:
-        lo, hi = u.interval
+        lo, hi = u.bounds
         if min(est.value - lo, hi - est.value) <= 0.01 * (hi - lo):
             raise NotIdentifiableError(
                 f"{what}: the model error is smallest at the edge of the search interval "

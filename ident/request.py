@@ -39,7 +39,7 @@ def check_order(value: Any, name: str = "order") -> int:
     if isinstance(value, bool) or not isinstance(value, numbers.Integral):
         if (not isinstance(value, bool) and isinstance(value, numbers.Real)
                 and float(value).is_integer()):
-            value = int(value)
+            value = int(float(value))
         else:
             raise IdentError(f"{name} must be a positive integer, got {value!r} "
                              f"(fix: e.g. {name}=10)")
@@ -82,7 +82,8 @@ class IdentRequest:
 
 
 def resolve_request(inp: Any, config: IdentConfig | None = None, *, order: Any = None,
-                    orders: str | Sequence[int] | None = None, reduce_at: Any = None,
+                    orders: str | int | range | list | tuple | None = None,
+                    reduce_at: Any = None,
                     max_order: Any = None, block_rows: Any = None, harmonics: float = 1.0,
                     driving_point: str | None = None) -> IdentRequest:
     """Resolve an identification's settings in one place.
