@@ -120,6 +120,7 @@ def _units(path: str | None, names: list[str], quantity: str) -> list[str]:
 
 def validate_model(result: Any, record: Any, *, method: str = "auto",
                    samples_per_period: int | None = None,
+                   transient_periods: int | None = None,
                    oversample: int = 8) -> ValidationResult:
     """Simulate an identified model on a record and measure its output error.
 
@@ -134,6 +135,9 @@ def validate_model(result: Any, record: Any, *, method: str = "auto",
         or several periods/realisations), time integration otherwise.
     samples_per_period : int, optional
         ``N`` of an array file that does not give it.
+    transient_periods : int, optional
+        Leading periods of the record to drop (default: the record's own count, else the
+        result's).
     oversample : int
         Internal steps per sample of the time integration.
 
@@ -192,7 +196,8 @@ def validate_model(result: Any, record: Any, *, method: str = "auto",
     periodic = declared or R > 1 or P > 1
     use = ("balance" if periodic else "time") if method == "auto" else method
     notes: list[str] = []
-    transient = (inp.transient_periods if inp.transient_periods is not None
+    transient = (transient_periods if transient_periods is not None
+                 else inp.transient_periods if inp.transient_periods is not None
                  else proc.get("transient_periods"))
     if use == "balance":
         from fnsi_lab.ident.errors import IdentWarning

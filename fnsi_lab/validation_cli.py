@@ -30,7 +30,8 @@ def _validate(args: argparse.Namespace) -> int:
     if not args.quiet:
         print(f"validating {args.result} on {args.record} ...", file=sys.stderr)
     v = validate_model(args.result, args.record, method=args.method,
-                       samples_per_period=args.samples_per_period)
+                       samples_per_period=args.samples_per_period,
+                       transient_periods=args.transient_periods)
     _print(v)
     if args.json_out:
         write_json(v.to_json(), args.json_out)
@@ -86,6 +87,9 @@ def register(subparsers) -> None:
                         "integration otherwise")
     p.add_argument("--samples-per-period", type=int, metavar="N",
                    help="N of an array file that does not give it")
+    p.add_argument("--transient-periods", type=int, metavar="K",
+                   help="leading periods of RECORD to drop (default: the record's own count, "
+                        "else the identification's)")
     p.add_argument("--force", action="store_true", help="replace existing --json/--svg files")
     p.add_argument("--quiet", action="store_true", help="no progress line")
     p.set_defaults(handler=_validate)

@@ -172,3 +172,32 @@ def test_aircraft_recording(tmp_path):
     assert [r["name"] for r in val["outputs"]] == ["drive", "wing", "payload"]
     assert all(r["unit"] == "m/s^2" and r["error_rms"] is None for r in val["outputs"])
     assert all(-30.0 < r["linear_error_db"] < 0.0 for r in val["outputs"]), val["outputs"]
+
+
+def test_real_silverbox_other_periods(tmp_path):
+    """Real data (the Silverbox circuit, bench/data/silverbox-schroeder): identified on
+    periods 0-5 of the record (the first transient), validated on periods 6-10 by the real
+    CLI. Measured: -28.3 dB against -0.6 dB for the underlying linear model (the benchmark's
+    own cross-level figure is about 33 dB); 20 dB is asserted, 8 dB of margin for the
+    record's 0.5 % period-to-period noise. Time integration of the same record agrees
+    within 1 dB (it is not told the record is periodic)."""
+    src = Path(__file__).resolve().parents[1] / "bench" / "data" / "silverbox-schroeder"
+    d = np.load(src / "schroeder.npz")
+    n = int(d["N"])
+    np.savez(tmp_path / "a.npz", u=d["u"][:6 * n], y=d["y"][:6 * n], fs=d["fs"], N=n,
+             channels=d["channels"])
+    np.savez(tmp_path / "b.npz", u=d["u"][6 * n:], y=d["y"][6 * n:], fs=d["fs"], N=n,
+             channels=d["channels"])
+    proc = _cli(["ident", "a.npz", "--config", str(src / "schroeder.yaml"), "--auto", "--json",
+                 "a.json", "--quiet"], tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    proc = _cli(["validate", "a.json", "b.npz", "--transient-periods", "0", "--json", "v.json"],
+                tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    (row,) = json.loads((tmp_path / "v.json").read_text())["outputs"]
+    assert row["linear_error_db"] - row["error_db"] >= 20.0, row
+    assert json.loads((tmp_path / "v.json").read_text())["n_periods"] == 5
+    proc = _cli(["validate", "a.json", "b.npz", "--method", "time", "--json", "t.json"], tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    (t,) = json.loads((tmp_path / "t.json").read_text())["outputs"]
+    assert abs(t["error_db"] - row["error_db"]) < 1.0, (t, row)
