@@ -163,6 +163,13 @@ def validate_model(result: Any, record: Any, *, method: str = "auto",
     res, res_name = _load_result(result)
     model = model_from_json(res, res_name)
     basis = basis_from_json(res.get("nonlinearities"), res_name)
+    notes: list[str] = []
+    linear_answer = bool(basis) and model.b_d.shape[1] == model.n_inputs
+    if linear_answer:   # the answer fell back to a linear model: its basis is not used
+        notes.append(f"the answer is a linear model (its nonlinear terms "
+                     f"{[nl.name for nl in basis]} were not kept): the nonlinear model's "
+                     "error is the linear model's")
+        basis = ()
     if len(model.input_names) != model.n_inputs + sum(len(nl.coefficient_names) for nl in basis):
         raise IdentError(f"{res_name}: the model has {len(model.input_names)} extended inputs "
                          f"but {model.n_inputs} force(s) and the basis "
@@ -195,7 +202,6 @@ def validate_model(result: Any, record: Any, *, method: str = "auto",
     R, P = inp.u.shape[0], inp.u.shape[1]
     periodic = declared or R > 1 or P > 1
     use = ("balance" if periodic else "time") if method == "auto" else method
-    notes: list[str] = []
     transient = (transient_periods if transient_periods is not None
                  else inp.transient_periods if inp.transient_periods is not None
                  else proc.get("transient_periods"))
@@ -230,6 +236,9 @@ def validate_model(result: Any, record: Any, *, method: str = "auto",
         sim = time_outputs(model, basis, u, y, list(inp.output_channels), band,
                            oversample=oversample)
         n_periods = None
+    if linear_answer:
+        sim.nonlinear = sim.linear.copy()
+        sim.info["linear_answer"] = True
     errors = output_errors(sim, list(inp.output_channels))
     for row, unit in zip(errors, _units(None if isinstance(record, IdentInput) else rec_name,
                                         list(inp.output_channels), quantity)):

@@ -133,6 +133,25 @@ def test_api_equals_cli_and_model_round_trip(duffing_files):
     assert nl.kind == "polynomial" and nl.exponent == 3 and nl.channels == {"y0": 1.0}
 
 
+def test_linear_answer_with_a_basis(duffing_files, tmp_path):
+    """A result whose answer fell back to a linear model (its state space has only the
+    force columns) while its basis is listed: validated as the linear model it is, the
+    nonlinear error equal to the linear one, and a note says so."""
+    res = json.loads((duffing_files / "low.json").read_text())
+    ss = res["state_space"]
+    ss["b"] = [row[:1] for row in ss["b"]]
+    ss["d"] = [row[:1] for row in ss["d"]]
+    ss["input_names"] = ss["input_names"][:1]
+    (tmp_path / "linear.json").write_text(json.dumps(res))
+    proc = _cli(["validate", "linear.json", str(duffing_files / "high.npz"), "--json", "v.json"],
+                tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    val = json.loads((tmp_path / "v.json").read_text())
+    (row,) = val["outputs"]
+    assert row["error_rms"] == row["linear_error_rms"]
+    assert any("linear model" in w for w in val["warnings"])
+
+
 def test_bad_inputs_give_one_line(duffing_files, tmp_path):
     """A result without a model, a record without the model's channels, a missing file:
     exit 2 with one line naming the file and the fix."""
