@@ -26,6 +26,15 @@ Kinds
 ``coulomb``
     ``h = tanh(delta' / velocity_scale)`` (regularized Coulomb friction; ``c`` is the
     friction force in N).
+``spline``
+    No assumed shape: a piecewise-linear restoring force in ``delta`` with slope changes at
+    ``knots`` (one column per knot, ``max(delta - t, 0)`` for ``t >= 0``,
+    ``min(delta - t, 0)`` for ``t < 0``: the force and its slope are zero on the segment
+    holding ``delta = 0``, the rest is the underlying linear stiffness), optionally the same
+    in ``delta'`` (``velocity_knots``, plus a ramp column ``clip(delta', t_-, t_+)`` between
+    the two innermost velocity knots: friction's sticking slope). ``c`` of a column is the
+    slope change at its knot (N/m). A knot count instead of positions is spread over the measured range by
+    :func:`ident.spline.resolve_knots` (docs/discovery.md).
 
 ``offset`` (m) is a static relative position added to ``delta`` (needed for gaps and even
 polynomials when the outputs are accelerations, whose DC is lost, or displacement sensors
@@ -49,8 +58,9 @@ import numpy as np
 
 from fnsi_lab.ident.errors import ChannelError, IdentError
 
-Kind = Literal["polynomial", "trilinear", "bilinear", "quadratic_damping", "coulomb"]
-KINDS: tuple[str, ...] = ("polynomial", "trilinear", "bilinear", "quadratic_damping", "coulomb")
+Kind = Literal["polynomial", "trilinear", "bilinear", "quadratic_damping", "coulomb", "spline"]
+KINDS: tuple[str, ...] = ("polynomial", "trilinear", "bilinear", "quadratic_damping", "coulomb",
+                          "spline")
 
 #: Parameters that can be estimated, per kind (``g_neg``/``g_pos``: the two clearances).
 ESTIMABLE: dict[str, tuple[str, ...]] = {"trilinear": ("g_neg", "g_pos", "offset"),
@@ -117,6 +127,11 @@ class Nonlinearity:
         Bilinear side.
     velocity_scale : float
         Coulomb regularization velocity (m/s).
+    knots, velocity_knots : tuple of float
+        Spline only: knot positions in ``delta`` (m) and in ``delta'`` (m/s).
+    knot_count, velocity_knot_count : int
+        Spline only: knots still to be spread over the measured range
+        (:func:`ident.spline.resolve_knots`); the element cannot be evaluated before.
     offset : float
         Static relative position added to ``delta`` (m).
     unknown : tuple of ParameterSpace
@@ -133,6 +148,10 @@ class Nonlinearity:
     clearance: float = 0.0
     side: Literal["pos", "neg"] = "pos"
     velocity_scale: float = 1e-3
+    knots: tuple[float, ...] = ()
+    velocity_knots: tuple[float, ...] = ()
+    knot_count: int = 0
+    velocity_knot_count: int = 0
     offset: float = 0.0
     truth: tuple[float, ...] | None = field(default=None, compare=False)
     unknown: tuple[ParameterSpace, ...] = ()
@@ -152,6 +171,13 @@ class Nonlinearity:
             object.__setattr__(self, "clearances", g)
         if self.kind == "bilinear" and self.clearance < 0:
             raise IdentError(f"nonlinearity {self.name!r}: clearance must be >= 0")
+        if self.kind == "spline":
+            for key in ("knots", "velocity_knots"):
+                object.__setattr__(self, key, tuple(sorted(float(t) for t in getattr(self, key))))
+            if not (self.knots or self.knot_count or self.velocity_knots
+                    or self.velocity_knot_count):
+                raise IdentError(f"nonlinearity {self.name!r}: a spline needs knots "
+                                 "(a count such as 12, or positions)")
         if self.kind == "coulomb" and not self.velocity_scale > 0:
             raise IdentError(f"nonlinearity {self.name!r}: velocity_scale must be > 0")
         object.__setattr__(self, "unknown", tuple(self.unknown))
@@ -212,12 +238,19 @@ class Nonlinearity:
         """Names of the coefficients (columns) this element contributes."""
         if self.kind == "trilinear":
             return (f"{self.name}:neg", f"{self.name}:pos")
+        if self.kind == "spline":
+            return (tuple(f"{self.name}:x{i}" for i in range(len(self.knots) or self.knot_count))
+                    + tuple(f"{self.name}:v{i}" for i in
+                            range(len(self.velocity_knots) or self.velocity_knot_count))
+                    + ((f"{self.name}:v_ramp",) if self.velocity_knots
+                       or self.velocity_knot_count else ()))
         return (self.name,)
 
     @property
     def needs_velocity(self) -> bool:
         """True if ``h`` depends on ``L^T q'``."""
-        return self.kind in ("quadratic_damping", "coulomb") or (
+        return self.kind in ("quadratic_damping", "coulomb") or bool(
+            self.kind == "spline" and (self.velocity_knots or self.velocity_knot_count)) or (
             self.kind == "polynomial" and self.argument == "velocity")
 
     def location_vector(self, output_names: Sequence[str]) -> np.ndarray:
@@ -261,6 +294,10 @@ class Nonlinearity:
             raise IdentError(f"nonlinearity {self.name!r}: "
                              f"{[sp.parameter for sp in self.unknown]} not estimated yet "
                              "(ident.parameter_search resolves 'auto' parameters)")
+        if self.kind == "spline" and (len(self.knots) < self.knot_count or
+                                      len(self.velocity_knots) < self.velocity_knot_count):
+            raise IdentError(f"nonlinearity {self.name!r}: knots not placed yet "
+                             "(ident.spline.resolve_knots spreads a knot count over the motion)")
         d = np.asarray(delta, float) + self.offset
         if self.needs_velocity:
             if delta_dot is None:
@@ -284,6 +321,12 @@ class Nonlinearity:
             if self.side == "pos":
                 return np.where(d > g, d - g, 0.0)[:, None]
             return np.where(d < -g, d + g, 0.0)[:, None]
+        if self.kind == "spline":
+            from fnsi_lab.ident.spline import hinge_columns
+            cols = [hinge_columns(d, self.knots)]
+            if self.velocity_knots:
+                cols.append(hinge_columns(v, self.velocity_knots, ramp=True))
+            return np.concatenate(cols, axis=1)
         if self.kind == "quadratic_damping":
             return (np.abs(v) * v)[:, None]
         return np.tanh(v / self.velocity_scale)[:, None]  # coulomb

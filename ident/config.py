@@ -27,6 +27,8 @@ field and the fix; unknown keys are rejected (typos). Example (3-DOF chain, rela
     integration_min_snr: 4       # accelerations: lines below 4x their noise not integrated
     refine: auto                 # auto | output-error | none: the output-error refinement
                                  # (docs/ident.md); auto: noisy data with basis functions
+    # nonlinearities: auto       # instead of the list: located (ident.locate) and
+                                 # characterised by a spline there (docs/discovery.md)
 
     auto:                        # options of the robust pipeline (--auto; docs/robust.md)
       top_n: 3                   # e.g. keep exactly the 3 most dominant modes
@@ -92,6 +94,9 @@ class IdentConfig:
     auto: AutoOptions = field(default_factory=AutoOptions)
     orders: tuple[int, ...] | None = None
     file: str | None = None
+    #: ``nonlinearities: auto``: the element is located and characterised from the data
+    #: (:mod:`ident.locate`, then a ``kind: spline`` there; docs/discovery.md).
+    nonlinearities_auto: bool = False
 
     @property
     def driving_points(self) -> dict[str, str | None]:
@@ -112,6 +117,7 @@ class IdentConfig:
 
 
 _NUMERIC_KEYS = {"band_hz", "clearances", "clearance", "truth", "exponent", "velocity_scale",
+                 "knots", "velocity_knots",
                  "offset", "highpass_hz", "steady_state_tolerance", "bilinear_period_s",
                  "integration_min_snr"}
 _FLOAT_RE = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
@@ -234,6 +240,24 @@ def _nonlinearity(sec: Section, index: int) -> Nonlinearity:
         kw["side"] = sec.string("side", "pos", choices=("pos", "neg"))
     elif kind == "coulomb":
         kw["velocity_scale"] = sec.number("velocity_scale", 1e-3, positive=True)
+    elif kind == "spline":
+        for key, count in (("knots", "knot_count"), ("velocity_knots", "velocity_knot_count")):
+            raw = sec.raw(key, None)
+            if raw is None:
+                continue
+            if isinstance(raw, int) and not isinstance(raw, bool) and raw >= 1:
+                kw[count] = int(raw)
+            elif (isinstance(raw, list) and raw and all(_is_number(v) for v in raw)
+                  and len(set(raw)) == len(raw)):
+                kw[key] = tuple(float(v) for v in raw)
+            else:
+                raise sec.error(key, f"expected a knot count (e.g. 12) or a list of distinct "
+                                f"positions, got {raw!r}",
+                                fix="e.g. knots: 12 (spread over the measured range) or "
+                                "knots: [-1.5, -0.5, 0.5, 1.5] (output length unit)")
+        if "knot_count" not in kw and "knots" not in kw:
+            raise sec.error("knots", "a spline element needs knots",
+                            fix="e.g. knots: 12 (spread over the measured range)")
     kw["offset"], space = _offset_spec(sec, kind)
     if space is not None:
         if unknown:
@@ -294,7 +318,8 @@ def parse_ident_config(data: Any, *, file: str | None = None) -> IdentConfig:
             raise sec.error("band_hz", f"need 0 <= f_min < f_max, got {list(band)}")
         nls = []
         names = set()
-        for i, item in enumerate(sec.items("nonlinearities", [])):
+        auto_nl = sec.raw("nonlinearities", None) == "auto"
+        for i, item in enumerate([] if auto_nl else sec.items("nonlinearities", [])):
             nl = _nonlinearity(Section(_coerce(item), file=file, prefix=f"nonlinearities[{i}]"), i)
             if nl.name in names:
                 raise sec.error("nonlinearities", f"duplicate name {nl.name!r}")
@@ -334,7 +359,7 @@ def parse_ident_config(data: Any, *, file: str | None = None) -> IdentConfig:
             basis_oversample=sec.integer("basis_oversample", 8, minimum=1),
             integration_min_snr=sec.number("integration_min_snr", 4.0, nonnegative=True),
             refine=sec.string("refine", "auto", choices=REFINEMENTS),
-            file=file, **_auto_section(sec))
+            nonlinearities_auto=auto_nl, file=file, **_auto_section(sec))
         sec.finish()
         return cfg
     except IdentConfigError:

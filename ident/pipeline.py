@@ -44,6 +44,7 @@ from fnsi_lab.ident.request import (DEFAULT_ORDERS, IdentRequest, basis_from_tru
 from fnsi_lab.ident.verdict import coefficient_verdict
 from fnsi_lab.ident.units import add_coefficient_units, result_units
 from fnsi_lab.ident.pole_fate import result_fates
+from fnsi_lab.ident.spline import needs_knots, resolve_knots
 from fnsi_lab.progress import Progress
 
 __all__ = ["IdentSession", "Identification", "prepare_session", "identify_input",
@@ -126,7 +127,9 @@ def apply_recording_truth(cfg: IdentConfig, truth: Mapping | None) -> tuple[Iden
 
 
 def prepare_session(inp: IdentInput, cfg: IdentConfig, *, search_order: int | None = None,
-                    select_search_order: bool = False, progress: Any = None) -> IdentSession:
+                    select_search_order: bool = False, progress: Any = None,
+                    motion_for: Sequence[Nonlinearity] = (),
+                    basis_oversample: int | None = None) -> IdentSession:
     """Select the configured channels and build the frequency data.
 
     Basis parameters left to the data (``clearances: auto``, ``exponent: auto``...) are
@@ -134,6 +137,9 @@ def prepare_session(inp: IdentInput, cfg: IdentConfig, *, search_order: int | No
     ``search_order`` (default the config's ``order``, else 30); with
     ``select_search_order`` that is the largest order, and the information criterion
     picks the order of the search (docs/ident.md, "Unknown basis parameters").
+    ``motion_for`` keeps the averaged motion of more elements' channels in ``data.motion``
+    (:mod:`ident.locate` evaluates candidate locations on it); ``basis_oversample``
+    overrides the config's.
 
     Raises
     ------
@@ -141,6 +147,19 @@ def prepare_session(inp: IdentInput, cfg: IdentConfig, *, search_order: int | No
         Channels missing, band outside the data, too few periods, ... (one line each).
     """
     t0 = time.perf_counter()
+    located = None
+    if cfg.nonlinearities_auto:   # the element from the data: located, then a spline there
+        from fnsi_lab.ident.locate import locate_input
+        from fnsi_lab.ident.spline import AUTO_KNOTS
+        located = locate_input(inp, cfg, progress=(lambda note: None) if progress else None)
+        best = located.located
+        if best is None:
+            raise IdentError("nonlinearities: auto found no location whose nonlinear force "
+                             "explains the distortion beyond the noise (fnsi-lab locate shows "
+                             "the candidates); identify a linear model without "
+                             "nonlinearities, or list the element")
+        cfg = replace(cfg, nonlinearities_auto=False, nonlinearities=(Nonlinearity(
+            name="auto", kind="spline", channels=best.channels, knot_count=AUTO_KNOTS),))
     inp = select_channels(inp, outputs=cfg.outputs, inputs=[i.name for i in cfg.inputs] or None)
     cfg, truth_notes = apply_recording_truth(cfg, inp.truth)
     nyquist = inp.sample_rate_hz / 2
@@ -157,13 +176,14 @@ def prepare_session(inp: IdentInput, cfg: IdentConfig, *, search_order: int | No
                          "leave output_quantity out of the config)")
     quantity = cfg.output_quantity or inp.output_quantity or "displacement"
     unknown = has_unknown_parameters(cfg.nonlinearities)
+    knots = needs_knots(cfg.nonlinearities)   # spline knot counts: placed on the motion
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", IdentWarning)
         data = prepare_frequency_data(
             u=inp.u, y=inp.y, sample_rate_hz=inp.sample_rate_hz,
             samples_per_period=inp.samples_per_period,
-            basis=() if unknown else cfg.nonlinearities,
-            motion_for=cfg.nonlinearities if unknown else (),
+            basis=() if unknown or knots else cfg.nonlinearities,
+            motion_for=(cfg.nonlinearities if unknown or knots else ()) + tuple(motion_for),
             band_hz=cfg.band_hz,
             transient_periods=(cfg.transient_periods if cfg.transient_periods is not None
                                else inp.transient_periods),
@@ -172,7 +192,7 @@ def prepare_session(inp: IdentInput, cfg: IdentConfig, *, search_order: int | No
             highpass_hz=cfg.highpass_hz, steady_state_tolerance=cfg.steady_state_tolerance,
             steady_periods=cfg.steady_periods,
             time_base=cfg.time_base, bilinear_period_s=cfg.bilinear_period_s,
-            basis_oversample=cfg.basis_oversample,
+            basis_oversample=basis_oversample or cfg.basis_oversample,
             integration_min_snr=cfg.integration_min_snr or None)
     if not np.any(data.excited):  # poles fitted to undriven lines would be no answer
         raise NoExcitedLineError(_no_excited_line(data))
@@ -184,6 +204,10 @@ def prepare_session(inp: IdentInput, cfg: IdentConfig, *, search_order: int | No
                 "every output is below the resolution of a 24-bit record (noise-free data, "
                 "e.g. a simulation); use auto or none")
         raise IdentError("weighting: noise needs at least 2 steady-state periods (use auto or none)")
+    if knots:
+        cfg = replace(cfg, nonlinearities=resolve_knots(cfg.nonlinearities, data.motion))
+        if not unknown:
+            data = with_basis(data, cfg.nonlinearities)
     timings = {"prepare": time.perf_counter() - t0}
     search = None
     if unknown:  # the one place where 'auto' basis parameters become numbers
@@ -196,9 +220,10 @@ def prepare_session(inp: IdentInput, cfg: IdentConfig, *, search_order: int | No
         cfg = replace(cfg, nonlinearities=search.basis)
         data = with_basis(data, search.basis)
         timings["parameter_search"] = time.perf_counter() - t1
+    evidence = {} if located is None else {"localisation": located.to_json()}
     return IdentSession(config=cfg, input=inp, data=data, weighted=weighted,
                         d_zero=cfg.d_zero_for(quantity), parameter_search=search,
-                        timings_s=timings,
+                        timings_s=timings, evidence=evidence,
                         warnings=list(inp.notes) + truth_notes
                         + [str(w.message) for w in caught]
                         + (list(search.warnings) if search is not None else []))
@@ -542,6 +567,33 @@ class Identification:
         return result_units(s.input.channel_units, data.input_names, data.output_names,
                             data.output_quantity, s.config.nonlinearities)
 
+    @property
+    def spline_curves(self) -> list:
+        """Force curves of the ``kind: spline`` elements with their bands and suggested
+        parametric forms (:func:`ident.spline.spline_curves`; empty without spline)."""
+        basis = self.config.nonlinearities
+        if self.coefficient_spectra is None or not any(nl.kind == "spline" for nl in basis):
+            return []
+        from fnsi_lab.ident.spline import spline_curves
+        values = {c["name"]: c["value"] for c in self.coefficients}
+        return spline_curves(basis, self.coefficient_spectra, values, self.data.motion)
+
+    def suggested_config(self) -> tuple[dict, str] | None:
+        """The config with each spline element replaced by its suggested parametric form,
+        as a mapping and as YAML text (None without spline elements)."""
+        curves = self.spline_curves
+        if not curves:
+            return None
+        from fnsi_lab.ident.spline import suggested_config
+        raw = None
+        if self.config.file:
+            from fnsi_lab.validate import load_yaml
+            try:
+                raw, _ = load_yaml(self.config.file)
+            except Exception:   # the file moved since: the nonlinearities alone
+                raw = None
+        return suggested_config(raw, self.config.nonlinearities, curves)
+
     def frf(self) -> dict:
         """Measured, model and underlying linear FRFs at the excited lines.
 
@@ -596,6 +648,20 @@ class Identification:
         cond = _conditioning(s) if s.config.nonlinearities else None
         if cond is not None:
             out["regressors"] = cond.to_dict()
+        curves = self.spline_curves
+        if curves:   # kind: spline: the curve on the element's first coefficient
+            firsts = {nl.name: nl.coefficient_names[0] for nl in s.config.nonlinearities}
+            vel = {nl.name: next((n for n in nl.coefficient_names if ":v" in n), None)
+                   for nl in s.config.nonlinearities}
+            for c in curves:
+                key = firsts[c.element] if c.argument == "displacement" else vel[c.element]
+                for coef in out["coefficients"]:
+                    if coef["name"] == key:
+                        coef["curve"] = c.to_dict()
+            suggested = self.suggested_config()
+            out["suggestions"] = [{"element": c.element, "argument": c.argument,
+                                   **c.suggestion} for c in curves]
+            out["suggested_config"] = {"config": suggested[0], "yaml": suggested[1]}
         out["nonlinearities"] = [_nonlinearity_json(nl, s.parameter_search, s.input.truth,
                                                     self.output_error)
                                  for nl in s.config.nonlinearities]
