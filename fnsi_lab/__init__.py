@@ -19,12 +19,12 @@ from typing import Any
 
 __version__ = "0.1.0"
 
-__all__ = ["identify", "analyse", "open_recording", "acquire", "load_config", "Identification",
+__all__ = ["identify", "analyse", "locate", "open_recording", "acquire", "load_config", "Identification",
            "validate_model", "__version__"]
 
 
 def __getattr__(name: str) -> Any:
-    if name in ("identify", "analyse", "open_recording", "acquire", "load_config",
+    if name in ("identify", "analyse", "locate", "open_recording", "acquire", "load_config",
                 "Identification"):
         from fnsi_lab import api
 

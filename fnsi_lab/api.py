@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Any, Mapping
 if TYPE_CHECKING:   # imported on first use (module __getattr__ below): a light `import fnsi_lab`
     from fnsi_lab.ident.pipeline import Identification
 
-__all__ = ["identify", "analyse", "open_recording", "acquire", "load_config", "Identification"]
+__all__ = ["identify", "analyse", "locate", "open_recording", "acquire", "load_config", "Identification"]
 
 
 def load_config(config: Any) -> Any:
@@ -223,6 +223,52 @@ def analyse(sources: Any, config: Any = None, *, band_hz: Any = None, alpha: flo
     inputs = [_as_input(s, n) for s in items]
     return analyse_inputs(inputs, cfg, band_hz=None if band_hz is None else
                           (float(band_hz[0]), float(band_hz[1])), alpha=alpha)
+
+
+def locate(source: Any, config: Any = None, *, candidates: Any = "all",
+           order: int | None = None, refine: int | None = None, knots: int | None = None,
+           progress: Any = None, samples_per_period: int | None = None) -> Any:
+    """Where is the structure nonlinear: candidate locations ranked (docs/discovery.md).
+
+    Parameters
+    ----------
+    source : str, path, mapping or IdentInput
+        As for :func:`identify`.
+    config : str, path, mapping or IdentConfig, optional
+        Band, inputs, outputs and order (its nonlinearities are not used). None: the
+        excited band.
+    candidates : {'all', 'channels', 'pairs'}, str path or sequence of mapping
+        Each channel to ground, each pair in the same direction, both (default), a YAML/JSON
+        file of location vectors, or the list itself (``[{'A': 1, 'B': -1}, ...]``).
+    order : int, optional
+        Linear model order (default: the config's, else the minimum-description-length
+        order).
+    refine, knots : int, optional
+        Candidates of the screen re-ranked by FNSI with a spline of ``knots`` knots
+        (defaults :data:`ident.locate.REFINE_TOP`, :data:`ident.locate.REFINE_KNOTS`).
+    progress : callable(str), optional
+
+    Returns
+    -------
+    Localisation
+        ``.candidates`` (best first: ``channels``, ``score``, ``significance``, ``verdict``),
+        ``.located``, ``.to_json()`` (what ``fnsi-lab locate --json`` writes).
+    """
+    from fnsi_lab.ident import locate as loc
+    from fnsi_lab.ident.pipeline import default_config
+
+    cfg = load_config(config) if config is not None else None
+    inp = _as_input(source, samples_per_period or (cfg.samples_per_period if cfg else None))
+    if cfg is None:
+        from dataclasses import replace
+        cfg = replace(default_config(inp), nonlinearities=())
+    if isinstance(candidates, (str, os.PathLike)) and str(candidates) not in (
+            "all", "channels", "pairs"):
+        candidates = loc.read_candidates_file(os.fspath(candidates))
+    return loc.locate_input(inp, cfg, candidates=candidates, order=order,
+                            refine=loc.REFINE_TOP if refine is None else int(refine),
+                            knots=loc.REFINE_KNOTS if knots is None else int(knots),
+                            progress=progress)
 
 
 def open_recording(path: str | os.PathLike[str], **kwargs: Any) -> Any:

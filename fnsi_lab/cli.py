@@ -28,7 +28,7 @@ from fnsi_lab.blas import restored_blas_threads
 from fnsi_lab.errors import FnsiLabError
 
 #: Modules that contribute subcommands, in help order.
-COMMAND_MODULES = ("fnsi_lab.daq.cli", "fnsi_lab.daq.drive_cli", "fnsi_lab.daq.formats.cli", "fnsi_lab.ident.cli", "fnsi_lab.ident.analyse_cli", "fnsi_lab.export.cli", "fnsi_lab.replay.cli", "fnsi_lab.viewer.cli", "fnsi_lab.viewer.report_cli", "fnsi_lab.campaign.cli", "fnsi_lab.validation_cli")
+COMMAND_MODULES = ("fnsi_lab.daq.cli", "fnsi_lab.daq.drive_cli", "fnsi_lab.daq.formats.cli", "fnsi_lab.ident.cli", "fnsi_lab.ident.analyse_cli", "fnsi_lab.ident.locate_cli", "fnsi_lab.export.cli", "fnsi_lab.replay.cli", "fnsi_lab.viewer.cli", "fnsi_lab.viewer.report_cli", "fnsi_lab.campaign.cli", "fnsi_lab.validation_cli")
 
 #: Command -> module registering it, for commands whose module need not be imported to
 #: find them. A module of COMMAND_MODULES whose commands are not listed here still works:
@@ -36,7 +36,7 @@ COMMAND_MODULES = ("fnsi_lab.daq.cli", "fnsi_lab.daq.drive_cli", "fnsi_lab.daq.f
 COMMAND_INDEX = {
     "acquire": "fnsi_lab.daq.cli", "info": "fnsi_lab.daq.cli", "recover": "fnsi_lab.daq.cli",
     "excitation": "fnsi_lab.daq.drive_cli", "ident": "fnsi_lab.ident.cli",
-    "analyse": "fnsi_lab.ident.analyse_cli",
+    "analyse": "fnsi_lab.ident.analyse_cli", "locate": "fnsi_lab.ident.locate_cli",
     "run": "fnsi_lab.replay.cli", "live": "fnsi_lab.replay.cli", "replay": "fnsi_lab.replay.cli",
     "view": "fnsi_lab.viewer.cli", "report": "fnsi_lab.viewer.report_cli", "import": "fnsi_lab.daq.formats.cli",
     "export": "fnsi_lab.export.cli",
@@ -45,7 +45,7 @@ COMMAND_INDEX = {
 }
 
 #: Commands that read recordings: they get ``--no-crc-check``.
-READS_RECORDINGS = ("info", "ident", "analyse", "replay", "report", "export", "batch", "validate")
+READS_RECORDINGS = ("info", "ident", "analyse", "locate", "replay", "report", "export", "batch", "validate")
 
 EPILOG = """\
 examples:

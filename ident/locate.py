@@ -61,6 +61,9 @@ GENERIC_COLUMNS: tuple[str, ...] = ("x|x|", "x^3", "max(x - max(x)/2, 0)",
 HINGES: tuple[float, ...] = (0.5,)
 #: A reduction whose F-test p-value is below this is significant (the usual 0.1 % level).
 P_SIGNIFICANT = 1e-3
+#: ``significance`` is capped here: p-values below 1e-300 underflow (the JSON would hold
+#: infinity); such a reduction is beyond any doubt from the noise.
+MAX_SIGNIFICANCE = 300.0
 #: Friction's smoothed sign: ``tanh(v / (FRICTION_SCALE max|v|))``.
 FRICTION_SCALE = 0.05
 _DIRECTION_RE = re.compile(r"[-_:.\s][+-]?(R?[XYZ])$", re.IGNORECASE)
@@ -472,7 +475,7 @@ def _verdicts(raw, rss_lin: float, n_lines: int, n: int, m: int, weighted: bool,
     for rank, i in enumerate(order_idx):
         cand, red, _ = raw[i]
         fstat = (red / df1) / (rss[i] / df2)
-        sig = float(-stats.f.logsf(fstat, df1, df2) / np.log(10))
+        sig = _neg_log10_sf(fstat, df1, df2)
         if rank == 0:
             verdict = "located" if sig > -np.log10(P_SIGNIFICANT) else "not significant"
         elif sig <= -np.log10(P_SIGNIFICANT):
@@ -560,7 +563,15 @@ def _f_test(rss_big: float, rss_small: float, df1: int, df2: int) -> tuple[float
     from scipy import stats
 
     fstat = max(rss_big - rss_small, 0.0) / df1 / (max(rss_small, 1e-300) / df2)
-    return float(fstat), float(-stats.f.logsf(fstat, df1, df2) / np.log(10))
+    return float(fstat), _neg_log10_sf(fstat, df1, df2)
+
+
+def _neg_log10_sf(fstat: float, df1: int, df2: int) -> float:
+    """``-log10`` of the F-test p-value, capped at :data:`MAX_SIGNIFICANCE` (p underflows)."""
+    from scipy import stats
+
+    v = float(-stats.f.logsf(fstat, df1, df2) / np.log(10))
+    return MAX_SIGNIFICANCE if not np.isfinite(v) or v > MAX_SIGNIFICANCE else v
 
 
 def refine_locations(data, screened: "Localisation", *, order: int, weighted: bool,

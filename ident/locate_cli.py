@@ -1,0 +1,105 @@
+"""``fnsi-lab locate``: where is the structure nonlinear (docs/discovery.md, "Localisation").
+
+A thin layer over :func:`fnsi_lab.locate` (the one entry point, shared with the API and
+``nonlinearities: auto``): parse the options, call it, print the ranking and write the JSON.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+EXAMPLES = """\
+examples:
+  fnsi-lab locate test.mcap --config smallsat39 --json where.json
+  fnsi-lab locate test.mcap --config ident.yaml --candidates pairs
+  fnsi-lab locate data.npz --config ident.yaml --candidates my-candidates.yaml
+
+Candidates: each channel to ground and each pair of channels measured in the same
+direction (names ending -X, _Y, :+Z...; every pair when the names carry none): 'all'
+(default), 'channels' or 'pairs'; or a YAML/JSON file with a list such as
+  - {channels: {NC2W-Z: 1, NC2B-Z: -1}}
+  - {channels: {IP1-Z: 1}}
+Every candidate gets a generic restoring force (stop-like and polynomial terms in the
+relative displacement, damping and friction terms in the relative velocity); a screen ranks
+them all by how much of the linear model's residual it explains, then the best few are
+re-ranked by a full FNSI with a fine spline at each. The config's nonlinearities are not
+used (they are the question); its band, inputs, outputs and order are.
+"""
+
+
+def register(subparsers) -> None:
+    """Add the ``locate`` subcommand to the ``fnsi-lab`` dispatcher."""
+    from fnsi_lab.ident import locate as loc
+
+    p = subparsers.add_parser(
+        "locate", help="rank candidate locations of a nonlinearity by the distortion they explain",
+        description="Localisation of nonlinear elements: each candidate location (a channel "
+                    "to ground, a pair of channels, or a list) is scored by how much of the "
+                    "measured distortion a generic nonlinear restoring force there explains, "
+                    "with an F-test of that reduction against the linear model.",
+        epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("input", metavar="INPUT", help="recording (.mcap) or array file (.npz, .mat)")
+    p.add_argument("--config", default=None, metavar="IDENT.yaml",
+                   help="ident configuration (band, inputs, outputs, order; docs/ident.md); a "
+                        "bare name such as smallsat39 picks a packaged example")
+    p.add_argument("--candidates", default="all", metavar="all|channels|pairs|FILE",
+                   help="candidate locations (default all: channels to ground and pairs)")
+    p.add_argument("--order", type=int, default=None, metavar="N",
+                   help="linear model order (default: the config's, else chosen by the "
+                        "minimum-description-length criterion)")
+    p.add_argument("--refine", type=int, default=loc.REFINE_TOP, metavar="K",
+                   help=f"re-rank the screen's best K by FNSI with a spline at each "
+                        f"(default {loc.REFINE_TOP}; 0: the screen alone)")
+    p.add_argument("--knots", type=int, default=loc.REFINE_KNOTS, metavar="K",
+                   help=f"spline knots of the refinement (default {loc.REFINE_KNOTS})")
+    p.add_argument("--top", type=int, default=10, metavar="N",
+                   help="candidates printed (default 10; the JSON has them all)")
+    p.add_argument("--json", dest="json_out", default=None, metavar="OUT.json",
+                   help="write the ranking as JSON ('-' for stdout)")
+    p.add_argument("--force", action="store_true", help="replace an existing --json file")
+    p.add_argument("--quiet", action="store_true", help="no summary on stdout")
+    p.set_defaults(handler=run_locate)
+
+
+def print_ranking(loc, top: int = 10, out=None) -> None:
+    """The ranking as text: one line per candidate."""
+    out = out or sys.stdout
+    t = loc.timings_s
+    print(f"{len(loc.candidates)} candidates, linear model order {loc.order}, "
+          f"{'noise-weighted' if loc.weighted else 'unweighted (no noise estimate)'}; "
+          f"screen {t.get('screen', 0):.2f} s, refinement of the best {loc.refined} "
+          f"(spline, {loc.refine_knots} knots) {t.get('refine', 0):.2f} s", file=out)
+    print(f"  {'rank':>4}  {'location':28s} {'stage':6s} {'score':>8s} {'-log10 p':>9s} "
+          f"{'RSS/best':>9s}  verdict", file=out)
+    for i, c in enumerate(loc.candidates[:top], 1):
+        print(f"  {i:4d}  {c.name:28s} {c.stage:6s} {c.score:8.4f} {c.significance:9.1f} "
+              f"{c.rss_ratio_to_best:9.3f}  {c.verdict}", file=out)
+    best = loc.located
+    if best is None:
+        print("no location explains the distortion beyond the noise", file=out)
+    else:
+        print(f"located: {best.name} (channels {best.channels}); characterise it with "
+              "kind: spline there (docs/discovery.md)", file=out)
+    for w in loc.warnings:
+        print(f"  warning: {w}", file=out)
+
+
+def run_locate(args: argparse.Namespace) -> int:
+    """Handler of ``fnsi-lab locate``; returns the exit status."""
+    import fnsi_lab
+    from fnsi_lab.blas import limit_blas_threads
+    from fnsi_lab.outputs import check_output_path, write_json
+
+    if args.json_out not in (None, "-"):
+        check_output_path(args.json_out, force=args.force, option="--json")
+    limit_blas_threads(1)
+    show = not args.quiet and args.json_out != "-"
+    progress = (lambda note: print(f"  {note}", file=sys.stderr)) if show else None
+    loc = fnsi_lab.locate(args.input, args.config, candidates=args.candidates,
+                          order=args.order, refine=args.refine, knots=args.knots,
+                          progress=progress)
+    if show:
+        print_ranking(loc, args.top)
+    write_json(loc.to_json(), args.json_out, force=True)
+    return 0
