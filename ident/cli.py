@@ -48,7 +48,11 @@ def add_ident_arguments(parser: argparse.ArgumentParser) -> None:
                         help="block rows i (default from outputs and max order)")
     parser.add_argument("--json", dest="json_out", default=None, metavar="OUT.json",
                         help="write the result as JSON ('-' for stdout)")
-    parser.add_argument("--force", action="store_true", help="replace an existing --json file")
+    parser.add_argument("--suggest", default=None, metavar="OUT.yaml",
+                        help="kind: spline elements: write the config with each replaced by "
+                             "the parametric form its curve suggests (docs/discovery.md)")
+    parser.add_argument("--force", action="store_true",
+                        help="replace an existing --json / --suggest file")
     parser.add_argument("--quiet", action="store_true", help="no summary on stdout")
     parser.add_argument("--blas-threads", type=opt.BLAS_THREADS, default=1, metavar="T",
                         help="OpenBLAS threads (default 1: the many small solves of the order "
@@ -261,6 +265,10 @@ def run_ident(args: argparse.Namespace) -> int:
         if args.json_out is not None:
             check_output_path(args.json_out, force=args.force, option="--json",
                               inputs=[args.input, args.config])
+    suggest = getattr(args, "suggest", None)
+    if suggest is not None:
+        check_output_path(suggest, force=args.force, option="--suggest",
+                          inputs=[args.input, args.config])
     if getattr(args, "blas_threads", 0) and args.blas_threads > 0:
         from fnsi_lab.blas import limit_blas_threads
 
@@ -291,5 +299,46 @@ def run_ident(args: argparse.Namespace) -> int:
         else:
             _print_summary(res)
         _print_refinement(res)
+        _print_curves(res)
+    if suggest is not None:
+        _write_suggestion(res, suggest)
     write_json(res, args.json_out, force=True)
     return 0
+
+
+def _print_curves(res: dict, out=None) -> None:
+    """``kind: spline`` results: each curve in a few numbers and the suggested config."""
+    out = out or sys.stdout
+    curves = [c["curve"] for c in res.get("coefficients", []) if c.get("curve")]
+    if not curves:
+        return
+    for c in curves:
+        f, sd = np.asarray(c["force"], float), np.asarray(c["std"], float)
+        i = int(np.argmax(np.abs(f)))
+        print(f"{c['element']} ({c['argument']}): force curve over {c['x'][0]:.4g} .. "
+              f"{c['x'][-1]:.4g}, largest {f[i]:.4g} +- {sd[i]:.2g} at {c['x'][i]:.4g} "
+              f"({len(c['knots'])} knots; the curve and its band: coefficients[].curve)",
+              file=out)
+    for sgg in res.get("suggestions", []):
+        print(f"  suggested form of {sgg['element']} ({sgg['argument']}): {sgg['kind']}"
+              + "".join(f", {k} {sgg[k]}" for k in ("clearances", "clearance", "side",
+                                                   "exponent", "velocity_scale") if k in sgg)
+              + (f", coefficients {sgg['values']}" if "values" in sgg else "")
+              + (f" ({sgg['reason']})" if "reason" in sgg else ""), file=out)
+    text = (res.get("suggested_config") or {}).get("yaml")
+    if text:
+        print("suggested config (paste, or write it with --suggest OUT.yaml):", file=out)
+        for line in text.splitlines():
+            print(f"    {line}", file=out)
+
+
+def _write_suggestion(res: dict, path: str) -> None:
+    """Write the suggested config (YAML) of a spline identification."""
+    from fnsi_lab.outputs import atomic_output
+
+    text = (res.get("suggested_config") or {}).get("yaml")
+    if not text:
+        raise IdentError("--suggest needs a kind: spline element in the config (nothing to "
+                         "suggest from); drop --suggest or add one (docs/discovery.md)")
+    with atomic_output(path) as fh:
+        fh.write(text)

@@ -129,6 +129,15 @@ class Localisation:
     weighted : bool
         Noise-weighted (the periods gave a noise estimate).
     timings_s : dict
+    refined : int
+        Candidates re-ranked by FNSI (the first ``refined`` of ``candidates``).
+    refine_knots : int
+        Spline knots of the refinement (0: the generic columns alone).
+    linear_misfit : float or None
+        The linear model's residual per real residual in noise variances (weighted data):
+        about 1 when only noise is left; far above, the F-tests compare against a residual
+        that is mostly model error (transients, drift, distortion) and every candidate's
+        columns remove some of it (docs/discovery.md, "Limits").
     """
 
     candidates: list
@@ -141,6 +150,7 @@ class Localisation:
     warnings: list = field(default_factory=list)
     refined: int = 0
     refine_knots: int = 0
+    linear_misfit: float | None = None
 
     @property
     def located(self) -> "LocationScore | None":
@@ -157,7 +167,8 @@ class Localisation:
                 "n_lines": self.n_lines, "columns": list(self.columns),
                 "degrees_of_freedom": list(self.degrees_of_freedom), "weighted": self.weighted,
                 "p_significant": P_SIGNIFICANT, "refined": self.refined,
-                "refine_knots": self.refine_knots, "timings_s": dict(self.timings_s),
+                "refine_knots": self.refine_knots, "linear_misfit": self.linear_misfit,
+                "timings_s": dict(self.timings_s),
                 "warnings": list(self.warnings)}
 
 
@@ -493,12 +504,14 @@ def _verdicts(raw, rss_lin: float, n_lines: int, n: int, m: int, weighted: bool,
 
 
 # ---------------------------------------------------------------------------- refinement
-#: Knots of the spline (each side of the range) that the refinement fits at a candidate.
-REFINE_KNOTS = 24
-#: Velocity knots of the refinement's spline (a friction or damping shape).
-REFINE_VELOCITY_KNOTS = 0
+#: Spline knots the refinement adds to the generic columns (0: the generic columns alone).
+#: The generic columns told the SmallSat's NC2 pair from the wheel point against the other
+#: bracket points by 2 % of residual, a 24-knot spline by 24 % (at 3x the time), while on
+#: 3 outputs (the aircraft-like GVT) 12-30 columns made the fixed-order fit worse than the
+#: linear model's: docs/discovery.md.
+REFINE_KNOTS = 0
 #: Candidates of the screen refined by FNSI.
-REFINE_TOP = 5
+REFINE_TOP = 8
 
 
 def _weighted_rss(data, Y_hat: np.ndarray, weighted: bool) -> float:
@@ -521,38 +534,69 @@ def _block_rows(data, order: int) -> int | None:
     return max(8, -(-order // p) + 2)
 
 
-def refine_candidate(data, candidate: Mapping[str, float], *, order: int, weighted: bool,
-                     knots: int = REFINE_KNOTS, velocity_knots: int = REFINE_VELOCITY_KNOTS,
-                     block_rows: int | None = None) -> tuple[float, int]:
-    """FNSI with a spline restoring force at one candidate location.
+def candidate_input(data, candidate: Mapping[str, float], *, knots: int = 0):
+    """The data with a candidate's generic columns (and spline hinges) as extended input.
 
     Parameters
     ----------
     data : FrequencyData
         Linear data whose ``motion`` holds the candidate's channels (and velocities).
     candidate : mapping str -> float
+    knots : int
+        Spline hinges over the measured relative displacement added to the generic columns
+        (:func:`ident.spline.hinge_columns`; 0: the generic columns alone).
+
+    Returns
+    -------
+    FrequencyData
+    """
+    from fnsi_lab.ident.spline import _spread, hinge_columns
+
+    motion = data.motion
+    chans = list(motion.channels)
+    L = np.zeros(len(chans))
+    for ch, wgt in candidate.items():
+        L[chans.index(ch)] = wgt
+    x = motion.displacement @ L
+    v = None if motion.velocity is None else motion.velocity @ L
+    h = generic_columns(x, v)
+    if knots:
+        t = _spread(x, knots)
+        extra = np.stack([hinge_columns(x[r], t) for r in range(x.shape[0])])
+        h = np.concatenate([extra, h], axis=2)
+    rms_h = np.sqrt(np.mean(h ** 2, axis=(0, 1)))
+    h = h[:, :, rms_h > 0]
+    H = (np.fft.rfft(h, axis=1)[:, motion.lines] / h.shape[1]).reshape(-1, h.shape[2])
+    m = data.n_inputs
+    sigma = motion.force_rms / rms_h[rms_h > 0]
+    return replace(data, E=np.concatenate([data.E[:, :m], H * sigma], axis=1),
+                   input_scale=np.concatenate([np.ones(m), sigma]),
+                   basis_names=tuple(f"generic{i}" for i in range(H.shape[1])))
+
+
+def refine_candidate(data, candidate: Mapping[str, float], *, order: int, weighted: bool,
+                     knots: int = 0, block_rows: int | None = None) -> tuple[float, int]:
+    """FNSI with the generic restoring force (and a spline) at one candidate location.
+
+    Parameters
+    ----------
+    data : FrequencyData
+    candidate : mapping str -> float
     order : int
     weighted : bool
-    knots, velocity_knots : int
-        Spline knots over the measured relative displacement (and velocity).
+    knots : int
+        Spline knots added to the generic columns (:func:`candidate_input`).
     block_rows : int, optional
 
     Returns
     -------
     (float, int)
         Residual sum of squares of the model's steady state (noise variances when weighted)
-        and the number of spline columns.
+        and the number of nonlinear columns.
     """
-    from fnsi_lab.ident.basis import Nonlinearity
     from fnsi_lab.ident.fnsi import model_at_order, subspace_decomposition
-    from fnsi_lab.ident.periodic import with_basis
-    from fnsi_lab.ident.spline import resolve_knots
 
-    vk = velocity_knots if data.motion.velocity is not None else 0
-    nl = Nonlinearity(name="candidate", kind="spline", channels=dict(candidate),
-                      knot_count=knots, velocity_knot_count=vk)
-    basis = resolve_knots((nl,), data.motion)
-    d = with_basis(data, basis)
+    d = candidate_input(data, candidate, knots=knots)
     dec = subspace_decomposition(d, max_order=order, weighted=weighted, block_rows=block_rows)
     model = model_at_order(dec, d, order)
     return _weighted_rss(d, model.steady_state_output(d), weighted), d.n_extended_inputs - d.n_inputs
@@ -620,7 +664,9 @@ def refine_locations(data, screened: "Localisation", *, order: int, weighted: bo
     for c in rest:   # a screen verdict relative to the refined best is not comparable
         if c.verdict in ("located", "as likely as the best"):
             c.verdict = "significant"
-    return replace(screened, candidates=out + rest, refined=len(out), refine_knots=knots)
+    misfit = (rss_linear / (2 * F * p)) if weighted and data.noise_var is not None else None
+    return replace(screened, candidates=out + rest, refined=len(out), refine_knots=knots,
+                   linear_misfit=misfit)
 
 
 # ---------------------------------------------------------------------------- entry point

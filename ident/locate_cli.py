@@ -52,7 +52,9 @@ def register(subparsers) -> None:
                    help=f"re-rank the screen's best K by FNSI with a spline at each "
                         f"(default {loc.REFINE_TOP}; 0: the screen alone)")
     p.add_argument("--knots", type=int, default=loc.REFINE_KNOTS, metavar="K",
-                   help=f"spline knots of the refinement (default {loc.REFINE_KNOTS})")
+                   help=f"spline knots added to the refinement's generic columns (default "
+                        f"{loc.REFINE_KNOTS}: none; 24 tells nearly equal motions apart better "
+                        "on many outputs, at 3x the time)")
     p.add_argument("--top", type=int, default=10, metavar="N",
                    help="candidates printed (default 10; the JSON has them all)")
     p.add_argument("--json", dest="json_out", default=None, metavar="OUT.json",
@@ -68,8 +70,13 @@ def print_ranking(loc, top: int = 10, out=None) -> None:
     t = loc.timings_s
     print(f"{len(loc.candidates)} candidates, linear model order {loc.order}, "
           f"{'noise-weighted' if loc.weighted else 'unweighted (no noise estimate)'}; "
-          f"screen {t.get('screen', 0):.2f} s, refinement of the best {loc.refined} "
-          f"(spline, {loc.refine_knots} knots) {t.get('refine', 0):.2f} s", file=out)
+          f"screen {t.get('screen', 0):.2f} s, FNSI refinement of the best {loc.refined} "
+          f"({'generic columns' + (f' + {loc.refine_knots}-knot spline' if loc.refine_knots else '')}) "
+          f"{t.get('refine', 0):.2f} s", file=out)
+    if loc.linear_misfit is not None:
+        print(f"linear model's residual: {loc.linear_misfit:.3g} noise variances per value"
+              + ("" if loc.linear_misfit < 3 else " (far above the noise: the tests compare "
+                 "against model error, see docs/discovery.md)"), file=out)
     print(f"  {'rank':>4}  {'location':28s} {'stage':6s} {'score':>8s} {'-log10 p':>9s} "
           f"{'RSS/best':>9s}  verdict", file=out)
     for i, c in enumerate(loc.candidates[:top], 1):

@@ -60,7 +60,7 @@ def _power(base: str, exponent: float) -> str:
     return f"({base})^{text}" if "/" in base or " " in base else f"{base}^{text}"
 
 
-def coefficient_unit(nl: Nonlinearity, force: str, length: str) -> str:
+def coefficient_unit(nl: Nonlinearity, force: str, length: str, name: str | None = None) -> str:
     """Unit of the coefficient(s) of one basis element.
 
     Parameters
@@ -77,6 +77,8 @@ def coefficient_unit(nl: Nonlinearity, force: str, length: str) -> str:
     """
     if nl.kind in ("trilinear", "bilinear"):
         return f"{force}/{length}"
+    if nl.kind == "spline":   # slope changes: of force over displacement, or over velocity
+        return f"{force} s/{length}" if name and ":v" in name else f"{force}/{length}"
     if nl.kind == "coulomb":
         return force
     if nl.kind == "quadratic_damping":
@@ -116,7 +118,7 @@ def result_units(channel_units: Mapping[str, str], input_names: Sequence[str],
     force = ins[0] if ins and len(set(ins)) == 1 else (ins[0] if ins else SI_FORCE)
     output = outs[0] if outs and len(set(outs)) == 1 else (outs[0] if outs else si_out)
     length = length_unit(output, output_quantity)
-    coefs = {name: coefficient_unit(nl, force, length)
+    coefs = {name: coefficient_unit(nl, force, length, name)
              for nl in basis for name in nl.coefficient_names}
     return {"force": force, "output": output, "length": length, "frf": f"{output}/{force}",
             "channels": {**dict(zip(input_names, ins)), **dict(zip(output_names, outs))},
