@@ -236,7 +236,7 @@ def read_candidates_file(path: str) -> list[dict]:
     fix = "give a list like [{channels: {NC2W-Z: 1, NC2B-Z: -1}}, {channels: {IP1-Z: 1}}]"
     if not isinstance(items, list) or not items:
         raise IdentError(f"{path}: expected a list of candidate locations ({fix})")
-    out = []
+    out: list[dict] = []
     for i, it in enumerate(items):
         chs = it.get("channels", it) if isinstance(it, dict) else None
         if (not isinstance(chs, dict) or not chs or not all(
@@ -284,8 +284,8 @@ def generic_columns(x: np.ndarray, v: np.ndarray | None) -> np.ndarray:
         cols += [np.abs(vs) * vs, np.tanh(vs / FRICTION_SCALE)]
         lin.append(vs)
     h = np.stack(cols, axis=-1)
-    lin = np.stack(lin, axis=-1)
-    flat, lflat = h.reshape(-1, h.shape[-1]), lin.reshape(-1, lin.shape[-1])
+    linear = np.stack(lin, axis=-1)
+    flat, lflat = h.reshape(-1, h.shape[-1]), linear.reshape(-1, linear.shape[-1])
     gram = lflat.T @ lflat
     coef = np.linalg.lstsq(gram, lflat.T @ flat, rcond=None)[0]   # 3 x 3 normal equations
     h = (flat - lflat @ coef).reshape(h.shape)
@@ -313,7 +313,9 @@ def _pair_coordinates(data, a_d: np.ndarray, c_d: np.ndarray, weighted: bool):
     """
     mu, phi = np.linalg.eig(a_d)
     ct = c_d @ phi                                                  # (p, n)
-    dirs, dens, scored = [], [], []
+    dirs: list[np.ndarray] = []
+    dens: list[np.ndarray | None] = []
+    scored: list[bool] = []
     for j in np.flatnonzero(np.imag(mu) >= 0):
         c = ct[:, j]
         if abs(mu[j].imag) <= 1e-12 * max(abs(mu[j]), 1.0):        # real pole: kept, unscored
@@ -346,7 +348,7 @@ def _pair_coordinates(data, a_d: np.ndarray, c_d: np.ndarray, weighted: bool):
         xi = np.einsum("kij,kj->ki", ginv, np.einsum("kpi,kp->ki", wb.conj(), Y))
         var = np.real(np.einsum("kii->ki", ginv))
     keep = np.asarray(scored)
-    den = np.stack([d for d, k in zip(dens, scored) if k], axis=1)
+    den = np.stack([d for d, k in zip(dens, scored) if k and d is not None], axis=1)
     return xi[:, keep], den, np.asarray(var)[:, keep]
 
 
@@ -475,7 +477,7 @@ def _verdicts(raw, rss_lin: float, n_lines: int, n: int, m: int, weighted: bool,
     """Scores, F-tests and verdicts of the candidates' residual reductions."""
     from scipy import stats
 
-    out = []
+    out: list[LocationScore] = []
     s = max((r[2] for r in raw), default=0)
     df1, df2 = 2 * s * n, max(2 * n_lines * n - 2 * (m + s) * n, 1)
     rss = np.array([max(rss_lin - r[1], 1e-300) for r in raw])
@@ -641,7 +643,7 @@ def refine_locations(data, screened: "Localisation", *, order: int, weighted: bo
         results.append((c, rss, s))
     results.sort(key=lambda r: r[1])
     best_rss = results[0][1] if results else 1.0
-    out = []
+    out: list[LocationScore] = []
     m = data.n_inputs
     for rank, (c, rss, s) in enumerate(results):
         df1 = s * (order + p)                              # B and D columns of the spline

@@ -658,7 +658,7 @@ class Identification:
                 for coef in out["coefficients"]:
                     if coef["name"] == key:
                         coef["curve"] = c.to_dict()
-            suggested = self.suggested_config()
+            suggested = self.suggested_config() or ({}, "")
             out["suggestions"] = [{"element": c.element, "argument": c.argument,
                                    **c.suggestion} for c in curves]
             out["suggested_config"] = {"config": suggested[0], "yaml": suggested[1]}

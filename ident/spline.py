@@ -413,7 +413,8 @@ def suggested_config(raw_config: Mapping | None, basis: Sequence[Nonlinearity],
     by_el: dict[str, list] = {}
     for c in curves:
         by_el.setdefault(c.element, []).append(c)
-    items, notes = [], []
+    items: list[dict | None] = []
+    notes: list[str] = []
     for nl in basis:
         if nl.kind != "spline":
             items.append(None)
