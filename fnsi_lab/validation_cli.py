@@ -71,8 +71,9 @@ def register(subparsers) -> None:
         help="simulate an identified model on another record and compare (nonlinear vs linear)",
         description="Simulate the nonlinear model of an 'fnsi-lab ident --json' result, and "
                     "its underlying linear model, with a record's measured force (periodic "
-                    "record: harmonic balance over the processed band; otherwise time "
-                    "integration) and compare with the measured outputs (docs/validate.md). "
+                    "record: harmonic balance, the model's motion predicted on every line; "
+                    "otherwise time integration from rest) and compare with the measured "
+                    "outputs over the identified band (docs/validate.md). "
                     "The record may be .mcap, .npz or .mat, as for 'fnsi-lab ident'.",
         epilog=EPILOG)
     p.add_argument("result", metavar="RESULT.json", help="result of fnsi-lab ident --json")
