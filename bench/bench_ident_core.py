@@ -35,7 +35,7 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from fnsi_lab.ident import fnsi  # noqa: E402
+from fnsi_lab.ident import fnsi, state_space  # noqa: E402
 from fnsi_lab.ident.basis import Nonlinearity  # noqa: E402
 from fnsi_lab.ident.coefficients import nonlinear_coefficients, summarize_coefficients  # noqa: E402
 from fnsi_lab.ident.periodic import FrequencyData, prepare_frequency_data  # noqa: E402
@@ -91,7 +91,7 @@ def synthetic_problem(seed: int = 1):
     B, C = rng.standard_normal((n0, m_e)), rng.standard_normal((p, n0))
     z = np.exp(2j * np.pi * K / N)
     E = rng.standard_normal((K.size, m_e)) + 1j * rng.standard_normal((K.size, m_e))
-    Y = np.einsum("kpm,km->kp", fnsi._transfer(Ad, B, C, np.zeros((p, m_e)), z), E)
+    Y = np.einsum("kpm,km->kp", state_space.transfer(Ad, B, C, np.zeros((p, m_e)), z), E)
     data = FrequencyData(lines=K, frequencies_hz=K * fs / N, z=z, Y=Y, E=E, input_scale=np.ones(m_e),
                          noise_cov=None, n_inputs=1, sample_rate_hz=fs, samples_per_period=N,
                          output_names=tuple(f"y{i}" for i in range(p)), input_names=("u0",),

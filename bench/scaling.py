@@ -175,8 +175,8 @@ def run_case(case: dict) -> dict:
     import fnsi_lab
     from reproduce_paper import match_modes
     if case.get("every_channel"):
-        from fnsi_lab.ident import fnsi
-        fnsi._OUTPUT_RANK_MARGIN = 10 ** 9  # default_output_rank -> None: no compression
+        from fnsi_lab.ident import subspace
+        subspace.OUTPUT_RANK_MARGIN = 10 ** 9  # default_output_rank -> None: no compression
     arrays = smallsat_arrays(case.get("channels", 39), case.get("realisations", 1),
                              case.get("periods", 1), case.get("fs", FS), case.get("n", N),
                              case.get("snr_db", EXTRA_SNR_DB), case.get("fs_sim", FS))

@@ -34,7 +34,9 @@ from fnsi_lab.ident import stabilisation as stab
 from fnsi_lab.ident.auto_result import AutoResult, confidence_statement
 from fnsi_lab.ident.errors import IdentError
 from fnsi_lab.ident.excitation import MAINS_HZ
-from fnsi_lab.ident.fast_bd import fast_estimate_bd, model_at_order_fast, model_error, model_output
+from fnsi_lab.ident.fast_bd import fast_estimate_bd, model_error, model_output
+from fnsi_lab.ident.models import model_at_order_fast
+from fnsi_lab.ident.state_space import dt_modal
 from fnsi_lab.ident.options import OUT_OF_BAND, AutoOptions, parse_orders
 
 __all__ = ["AutoOptions", "AutoResult", "identify_auto", "modal_form", "confidence_statement",
@@ -61,8 +63,7 @@ def modal_form(model):
     c_hat_d, b_hat_d : complex ndarray, shapes (p, n), (n, m_e)
         ``C_d Phi`` and ``Phi^-1 B_d``.
     """
-    from fnsi_lab.ident import fnsi
-    mu, phi, _ = fnsi._dt_modal(model)
+    mu, phi, _ = dt_modal(model)
     lam = np.asarray(model.poles.eigenvalues)
     return (mu, lam, model.c_c @ phi, np.linalg.solve(phi, model.b_c.astype(complex)),
             model.c_d @ phi, np.linalg.solve(phi, model.b_d.astype(complex)))

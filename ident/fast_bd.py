@@ -12,7 +12,7 @@ import scipy.linalg as sla
 
 from fnsi_lab.ident.errors import IdentError
 
-__all__ = ["fast_estimate_bd", "model_at_order_fast", "model_output", "model_error",
+__all__ = ["fast_estimate_bd", "model_output", "model_error",
            "line_sums", "line_fold"]
 
 #: Eigenvector condition number above which the sweep falls back to the core's estimate_bd.
@@ -220,56 +220,6 @@ def line_fold(data):
     return out
 
 
-def _compressed_outputs(decomp, data, d_zero):
-    """``project_outputs(data, W)`` of a compressed decomposition, cached on ``data``."""
-    from fnsi_lab.ident import fnsi
-    cache = data.__dict__.setdefault("_ident_cache", {})
-    key = ("compressed", id(decomp.output_basis), bool(d_zero))
-    hit = cache.get(key)
-    if hit is None or hit[0] is not decomp.output_basis:
-        hit = cache[key] = (decomp.output_basis,) + fnsi.project_outputs(
-            data, decomp.output_basis, d_zero=d_zero)
-    return hit[1:]
-
-
-def model_at_order_fast(decomp, data, order, *, d_zero=False, weighted_bd=True):
-    """:func:`ident.fnsi.model_at_order` with :func:`fast_estimate_bd` for B, D.
-
-    ``A`` and ``C`` always come from ``decomp`` (weighted SVD if it was). ``B``, ``D`` use the
-    fast unweighted routine unless the decomposition is weighted and ``weighted_bd``. When
-    the decomposition is compressed (``decomp.output_basis`` ``W``) the least squares runs
-    on the ``r`` channels ``Y W`` and ``D = W D_r + D_perp`` (exact,
-    :func:`ident.fnsi.project_outputs`); the model keeps its ``r``-channel form for
-    :func:`model_error`.
-    """
-    from fnsi_lab.ident import fnsi
-    if decomp.weighted and weighted_bd:
-        return fnsi.model_at_order(decomp, data, order, d_zero=d_zero)
-    n = int(order)
-    if not 1 <= n <= decomp.max_order:
-        raise IdentError(f"order {n} is outside 1..{decomp.max_order} (max order of this "
-                         "decomposition)")
-    W = decomp.output_basis
-    a_d, c_r = fnsi._state_matrices_block(decomp, n)
-    fit_data = data if W is None else _compressed_outputs(decomp, data, d_zero)[0]
-    bd = fast_estimate_bd(a_d, c_r, fit_data, d_zero=d_zero)
-    if bd is None:
-        b_d, d_r = fnsi.estimate_bd(a_d, c_r, fit_data, d_zero=d_zero, weighted=False)
-    else:
-        b_d, d_r = bd
-    if W is None:
-        c_d, d_d = c_r, d_r
-    else:
-        c_d, d_d = W @ c_r, W @ d_r + _compressed_outputs(decomp, data, d_zero)[1]
-    model = fnsi.make_model(a_d, b_d, c_d, d_d, sample_rate_hz=data.sample_rate_hz,
-                            n_inputs=data.n_inputs, input_names=data.extended_input_names,
-                            output_names=data.output_names, time_base=data.time_base,
-                            bilinear_period_s=data.bilinear_period_s)
-    if W is not None:  # the r-channel twin: model error in O(F n r)
-        model.__dict__["_compressed"] = (c_r, d_r) + _compressed_outputs(decomp, data, d_zero)
-    return model
-
-
 def model_output(model, data, mask=slice(None)):
     """Steady-state output ``G_d(z_k) E_k`` on the lines of ``mask`` (modal form, O(F n (p + m_e)))."""
     return _output(model, model.c_d, model.d_d, data.E_physical[mask], data.z[mask])
@@ -311,7 +261,7 @@ def _residual_energy(model, c_d, d_d, data, mask) -> float:
 def model_error(model, data, mask):
     """V(n) over ``mask`` (docs/method.md §3 shortcut in modal form).
 
-    A model of :func:`model_at_order_fast` on a compressed decomposition is evaluated on its
+    A model of :func:`ident.models.model_at_order_fast` on a compressed decomposition is evaluated on its
     ``r`` channels plus the fixed out-of-span residual (the two parts are orthogonal), so
     the cost does not grow with the number of channels; stacked realisations are folded
     per unique line (:func:`line_fold`, :func:`_residual_energy`).

@@ -27,7 +27,7 @@ from fnsi_lab.ident.noise import (mains_contaminated_lines, mains_outlier_lines,
 OutputQuantity = Literal["displacement", "velocity", "acceleration"]
 OUTPUT_QUANTITIES: tuple[str, ...] = ("displacement", "velocity", "acceleration")
 #: Above this size the noise covariance keeps only its diagonal when ``P - 1 < 2 p`` (then
-#: the weighting uses the variances anyway, ident.fnsi._inverse_covariance).
+#: the weighting uses the variances anyway, ident.weights.inverse_covariance).
 _FULL_COV_MAX_BYTES = 256 * 2 ** 20
 
 

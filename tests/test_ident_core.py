@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import scipy.linalg as sla
 
-from fnsi_lab.ident import fnsi
+from fnsi_lab.ident import fnsi, state_space, weights
 from fnsi_lab.ident.basis import Nonlinearity, evaluate_basis
 from fnsi_lab.ident.coefficients import nonlinear_coefficients, summarize_coefficients
 from fnsi_lab.ident.errors import ChannelError, IdentError, IdentWarning, NotIdentifiableError
@@ -55,7 +55,7 @@ def periodic_response(Ad, Bd, Cd, Dd, u):
     N = u.shape[0]
     U = np.fft.fft(u, axis=0)
     z = np.exp(2j * np.pi * np.arange(N) / N)
-    G = fnsi._transfer(Ad, Bd, Cd, Dd, z)
+    G = state_space.transfer(Ad, Bd, Cd, Dd, z)
     return np.fft.ifft(np.einsum("kpm,km->kp", G, U), axis=0).real
 
 
@@ -149,7 +149,7 @@ def _slow_bd(a, c, data, d_zero, weighted):
     n, p, m_e = a.shape[0], c.shape[0], data.n_extended_inputs
     rows = []
     rhs = []
-    Q = fnsi._inverse_covariance(data, weighted)
+    Q = weights.inverse_covariance(data, weighted)
     for k in range(data.n_lines):
         K = c @ np.linalg.inv(data.z[k] * np.eye(n) - a)
         J = np.kron(data.E[k][None, :], K)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fnsi_lab.ident import fnsi
+from fnsi_lab.ident import fnsi, models, subspace
 
 
 def _hankel_gram(z, E, Y, i=4):
@@ -45,7 +45,7 @@ def test_no_folding_when_it_would_not_shrink_or_lines_repeat_unevenly():
 def _no_folding(monkeypatch):
     """The reference path: the QR and the model error over every stacked realisation."""
     from fnsi_lab.ident import fast_bd
-    monkeypatch.setattr(fnsi, "fold_repeated_lines", lambda z, lines, E, Y: None)
+    monkeypatch.setattr(subspace, "fold_repeated_lines", lambda z, lines, E, Y: None)
     monkeypatch.setattr(fast_bd, "line_fold", lambda data: None)
 
 
@@ -93,13 +93,13 @@ def _hankel_qr_residual(z, E, Y, i):
 def test_projected_gram_equals_the_qr_residual_and_refuses_an_unresolved_floor():
     z, lines, E, Y = _stacked(R=4, F_u=100, m_e=2, p=3, seed=1)
     reference = _hankel_qr_residual(z, E, Y, 6)
-    S = fnsi._projected_residual_gram(z, E, Y, lines, 6, check_order=10)
+    S = subspace._projected_residual_gram(z, E, Y, lines, 6, check_order=10)
     assert S is not None          # random outputs: a noise floor far above round-off
     assert np.max(np.abs(S - reference)) <= 1e-12 * np.max(np.abs(reference))
     # outputs exactly explained by the inputs (noise-free, no dynamics beyond them): the
     # residual is round-off, which the projected form cannot resolve -> None (exact QR)
     Y_exact = E @ np.array([[1.0, 2.0, -1.0], [0.5, -1.0, 3.0]])
-    assert fnsi._projected_residual_gram(z, E, Y_exact, lines, 6, check_order=10) is None
+    assert subspace._projected_residual_gram(z, E, Y_exact, lines, 6, check_order=10) is None
 
 
 def test_auto_method_takes_the_projected_form_only_on_noisy_data(monkeypatch):
@@ -113,7 +113,7 @@ def test_auto_method_takes_the_projected_form_only_on_noisy_data(monkeypatch):
     pole = 0.98 * np.exp(2j * np.pi * 100 / N)
     H = 1.0 / ((z - pole) * (z - pole.conj()))
     clean = np.stack([H, z * H, H / z], axis=1) * E
-    monkeypatch.setattr(fnsi, "_QR_CHEAP_FLOPS", 0.0)      # always past the cheap QR
+    monkeypatch.setattr(subspace, "_QR_CHEAP_FLOPS", 0.0)      # always past the cheap QR
     for noise, expected in ((1e-3, "projected"), (0.0, "qr")):
         Y = clean + noise * (rng.standard_normal(clean.shape)
                              + 1j * rng.standard_normal(clean.shape))
@@ -176,7 +176,7 @@ def test_fold_keeps_the_block_hankel_gram(R, mismatch, noise):
     G = _hankel_gram(data.z, data.E, data.Y, i)
     Gq = _hankel_gram(fold.z, fold.E, fold.Y, i)
     if fold.small_gram is not None:
-        Gq = Gq + fnsi._lag_sum_hankel_gram(fold.z_unique, fold.small_gram, i, m_e)
+        Gq = Gq + subspace._lag_sum_hankel_gram(fold.z_unique, fold.small_gram, i, m_e)
     # sums of a few hundred products of O(1) numbers: round-off, 1e-13 of the largest entry
     assert np.max(np.abs(G - Gq)) <= 1e-13 * np.max(np.abs(G))
     if noise:                       # every component carries noise: all of them are QR rows
@@ -216,7 +216,7 @@ def test_unrepeated_lines_take_the_plain_qr_unchanged():
     """One realisation: no fold, and the QR block equals the reference formulation's."""
     data, _ = _modal_realisations(1, mismatch=1e-6)
     assert fnsi.fold_repeated_lines(data.z, data.lines, data.E, data.Y) is None
-    L22 = fnsi._qr_residual_block(data.z, data.E, data.Y, 6)
+    L22 = subspace._qr_residual_block(data.z, data.E, data.Y, 6)
     ref = _hankel_qr_residual(data.z, data.E, data.Y, 6)
     assert np.allclose(L22 @ L22.T, ref, rtol=0, atol=1e-13 * np.max(np.abs(ref)))
 
@@ -234,7 +234,7 @@ def test_model_error_of_folded_realisations_equals_the_sum_over_every_one(monkey
         if not fold:
             data.__dict__["_ident_cache"].clear()
             monkeypatch.setattr(fast_bd, "line_fold", lambda d: None)
-        model = fast_bd.model_at_order_fast(dec, data, 4)
+        model = models.model_at_order_fast(dec, data, 4)
         errors.append(fast_bd.model_error(model, data, mask))
         if fold:
             zu, inv, Ef, Yf, const = fast_bd.line_fold(data)
@@ -246,9 +246,9 @@ def test_model_error_of_folded_realisations_equals_the_sum_over_every_one(monkey
 def test_auto_method_on_noise_free_realisations_does_not_try_the_projected_form(monkeypatch):
     """Rank-deficient lines (no noise to resolve): straight to the exact QR of the fold."""
     calls = []
-    monkeypatch.setattr(fnsi, "_QR_CHEAP_FLOPS", 0.0)      # always past the cheap QR
-    original = fnsi._projected_residual_gram
-    monkeypatch.setattr(fnsi, "_projected_residual_gram",
+    monkeypatch.setattr(subspace, "_QR_CHEAP_FLOPS", 0.0)      # always past the cheap QR
+    original = subspace._projected_residual_gram
+    monkeypatch.setattr(subspace, "_projected_residual_gram",
                         lambda *a, **k: calls.append(1) or original(*a, **k))
     data, _ = _modal_realisations(8, mismatch=1e-9)
     assert "qr" in fnsi.subspace_decomposition(data, max_order=8, block_rows=6).timings_s

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import scipy.linalg as sla
 
-from fnsi_lab.ident import auto, fnsi
+from fnsi_lab.ident import auto, fnsi, state_space
 from fnsi_lab.ident.fast_bd import model_error
 from fnsi_lab.ident.periodic import FrequencyData
 from fnsi_lab.ident.errors import IdentError
@@ -88,7 +88,7 @@ def test_modal_form_matches_the_ct_and_dt_models(noisy, time_base):
     np.testing.assert_allclose(np.exp(lam / FS), mu, rtol=1e-12)
     w = 2 * np.pi * np.array([7.0, 23.0, 41.0])
     H = np.array([(ch / (1j * wk - lam)) @ bh for wk in w]) + m.d_c
-    H_ct = fnsi._transfer(m.a_c, m.b_c, m.c_c, m.d_c, 1j * w)
+    H_ct = state_space.transfer(m.a_c, m.b_c, m.c_c, m.d_c, 1j * w)
     z = np.exp(1j * w / FS)
     G = np.array([(ch_d / (zk - mu)) @ bh_d for zk in z]) + m.d_d
     # the same algebra in modal and in state coordinates: rounding only (measured ~1e-14)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fnsi_lab.ident import fast_bd, fnsi
+from fnsi_lab.ident import fast_bd, fnsi, models, subspace
 from fnsi_lab.ident.periodic import FrequencyData
 
 FS, N = 1000.0, 2048
@@ -75,7 +75,7 @@ def test_output_split_gives_the_full_least_squares_exactly():
     data, _ = dense_array(60, snr_db=40.0)
     dec = fnsi.subspace_decomposition(data, max_order=10, output_rank=20)
     n = 8
-    model = fast_bd.model_at_order_fast(dec, data, n)
+    model = models.model_at_order_fast(dec, data, n)
     a, c = model.a_d, model.c_d
     F, p, me = data.n_lines, data.n_outputs, data.n_extended_inputs
     # regressor of vec(B) (n me) and vec(D) (p me), real and imaginary parts as rows
@@ -140,7 +140,7 @@ def test_stacked_realisations_are_summed_per_line_with_the_same_answer():
     sums = fast_bd.line_sums(data)
     assert sums is not None and sums[0].size == data.n_lines // 4
     dec = fnsi.subspace_decomposition(data, max_order=20, method="gram")
-    model = fast_bd.model_at_order_fast(dec, data, 12)
+    model = models.model_at_order_fast(dec, data, 12)
     assert np.max(pole_errors(model, lam)) < 1e-4
     a, c = model.a_d, model.c_d
     mask = data.frequencies_hz > 40
@@ -168,7 +168,7 @@ def test_weighted_bd_with_many_channels_eliminates_d_per_channel(monkeypatch):
     dec = fnsi.subspace_decomposition(data, max_order=10, weighted=False)
     a, c = fnsi.state_matrices(dec, 8)
     b1, d1 = fnsi.estimate_bd(a, c, data, weighted=True)          # 40 > 8 + 8: eliminated
-    monkeypatch.setattr(fnsi, "_OUTPUT_RANK_MARGIN", 10 ** 6)     # force the full system
+    monkeypatch.setattr(subspace, "OUTPUT_RANK_MARGIN", 10 ** 6)     # force the full system
     b2, d2 = fnsi.estimate_bd(a, c, data, weighted=True)
     assert np.abs(b1 - b2).max() < 1e-9 * np.abs(b2).max()
     assert np.abs(d1 - d2).max() < 1e-9 * np.abs(d2).max()
