@@ -253,6 +253,19 @@ def _print_auto_summary(res: Any, out=None, warnings: list | tuple = (),
         print(f"  warning: {w}", file=out)
 
 
+def _print_nested(res: dict, out=None) -> None:
+    """The nonlinear answer against the linear fit (the JSON dict's ``nonlinear_vs_linear``)."""
+    out = out or sys.stdout
+    nvl = res.get("nonlinear_vs_linear")
+    if not nvl:
+        return
+    print(f"nonlinear vs linear: {nvl['statement']}", file=out)
+    modes = nvl.get("linear_modes") or []
+    print(f"  linear fit (order {nvl['order_linear']}): {len(modes)} modes "
+          + ", ".join(f"{m['frequency_hz']:.4g} Hz ({100 * m['damping_ratio']:.2g} %)"
+                      for m in modes), file=out)
+
+
 def run_ident(args: argparse.Namespace) -> int:
     """Handler of ``fnsi-lab ident``; returns the exit status."""
     import fnsi_lab
@@ -299,6 +312,7 @@ def run_ident(args: argparse.Namespace) -> int:
         else:
             _print_summary(res)
         _print_refinement(res)
+        _print_nested(res)
         _print_curves(res)
     if suggest is not None:
         _write_suggestion(res, suggest)

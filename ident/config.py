@@ -91,6 +91,7 @@ class IdentConfig:
     basis_oversample: int = 8
     integration_min_snr: float | None = 4.0
     refine: str = "auto"
+    compare_linear: bool = True
     auto: AutoOptions = field(default_factory=AutoOptions)
     orders: tuple[int, ...] | None = None
     file: str | None = None
@@ -359,6 +360,7 @@ def parse_ident_config(data: Any, *, file: str | None = None) -> IdentConfig:
             basis_oversample=sec.integer("basis_oversample", 8, minimum=1),
             integration_min_snr=sec.number("integration_min_snr", 4.0, nonnegative=True),
             refine=sec.string("refine", "auto", choices=REFINEMENTS),
+            compare_linear=sec.boolean("compare_linear", True),
             nonlinearities_auto=auto_nl, file=file, **_auto_section(sec))
         sec.finish()
         return cfg

@@ -1,0 +1,94 @@
+"""Nested models (ident.nested): the nonlinear answer against the linear fit of the same data."""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+import pytest
+
+import fnsi_lab
+from fnsi_lab.daq.multisine import multisine
+from fnsi_lab.daq.sim import lumped_model, simulate
+from fnsi_lab.ident.nested import match_modes, parameter_count
+
+FS, N, PERIODS = 1024.0, 4096, 6
+CUBIC = {"band_hz": [3, 120], "transient_periods": 1, "refine": "none",
+         "inputs": [{"name": "F", "driving_point": "X3"}],
+         "nonlinearities": [{"name": "knl", "kind": "polynomial", "exponent": 3,
+                             "channels": {"X2": 1, "X3": -1}}]}
+
+
+@lru_cache(maxsize=None)
+def clean_record(variant: str, rms: float):
+    ms = multisine(N, FS, (3, 60), rms, n_periods=PERIODS + 1, seed=11)
+    u = ms.signal[0][:, None]
+    y = simulate(lumped_model(variant), u, FS, periodic=N,
+                 quantities=("displacement",)).displacement
+    return u, y
+
+
+def arrays(variant, rms, seed):
+    u, y = clean_record(variant, rms)
+    y = y + 0.01 * y.std(axis=0) * np.random.default_rng(50 + seed).standard_normal(y.shape)
+    return {"u": u, "y": y, "fs": FS, "N": N, "channels": np.array(["X1", "X2", "X3"]),
+            "input_channels": np.array(["F"])}
+
+
+def test_supported_cubic_keeps_its_answer():
+    r = fnsi_lab.identify(arrays("cubic", 5.0, 0), CUBIC, order=6)
+    nvl = r.to_json()["nonlinear_vs_linear"]
+    assert nvl["decision"] == "nonlinear" and nvl["p_value"] < 1e-6
+    assert nvl["residual_nonlinear"] < nvl["residual_linear"]
+    assert nvl["parameters_nonlinear"] - nvl["parameters_linear"] == 6 + 3   # n s + s p
+    assert nvl["evaluation"].startswith("basis columns from the odd periods")
+    assert not nvl["modes"]["lost"] and not nvl["modes"]["added"]
+    # the answer is the nonlinear model's: its modes and coefficient, within 1 %
+    assert [m["frequency_hz"] for m in r.modes] != [m["frequency_hz"] for m in r.nested.linear.modes]
+    assert r.coefficients[0]["verdict"] == "identified"
+    assert abs(r.coefficients[0]["value"] / 1e9 - 1) < 0.01
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_unsupported_basis_gives_the_linear_fit_modes(seed):
+    """A linear chain fitted with a cubic basis: the answer's modes are the linear fit's,
+    every coefficient is not identifiable and says why, the JSON holds the test."""
+    r = fnsi_lab.identify(arrays("none", 5.0, seed), CUBIC, order=6)
+    doc = r.to_json()
+    nvl = doc["nonlinear_vs_linear"]
+    assert nvl["decision"] == "linear"
+    for key in ("residual_nonlinear", "residual_linear", "statistic", "p_value",
+                "parameters_nonlinear", "parameters_linear", "n_observations", "statement"):
+        assert key in nvl
+    assert "not supported" in nvl["statement"] or "no coefficient" in nvl["statement"]
+    linear = [m["frequency_hz"] for m in r.nested.linear.modes]
+    assert [m["frequency_hz"] for m in r.modes] == linear
+    assert [m["frequency_hz"] for m in doc["modes"]] == pytest.approx(linear, rel=1e-12)
+    assert len(linear) == 3
+    c = doc["coefficients"][0]
+    assert c["verdict"] == "not identifiable" and c["verdict_reason"].startswith("the nonlinear")
+
+
+def test_robust_pipeline_compares_too():
+    r = fnsi_lab.identify(arrays("none", 5.0, 2), CUBIC, orders="2:16")
+    nvl = r.to_json()["nonlinear_vs_linear"]
+    assert nvl["decision"] == "linear"
+    assert r.nested.linear.method == "auto"
+    assert len(r.modes) == 3   # the chain's three modes, from the linear fit
+
+
+def test_compare_linear_can_be_turned_off():
+    r = fnsi_lab.identify(arrays("cubic", 5.0, 0), {**CUBIC, "compare_linear": False}, order=6)
+    assert r.nested is None and "nonlinear_vs_linear" not in r.to_json()
+
+
+def test_match_modes_and_parameter_count():
+    m = match_modes([3.0, 7.17, 9.85], [3.01, 7.0, 11.0])
+    assert [k["linear_hz"] for k in m["kept"]] == [3.0, 7.17]
+    assert m["lost"] == [9.85] and m["added"] == [11.0]
+
+    class Model:
+        order = 10
+        d_d = np.zeros((3, 3))
+    assert parameter_count(Model, d_zero=False) == 10 * 6 + 9
+    assert parameter_count(Model, d_zero=True) == 60
