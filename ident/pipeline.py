@@ -684,8 +684,10 @@ class Identification:
                                  for nl in s.config.nonlinearities]
         if self.output_error is not None:   # with the decision (session.evidence) below
             out["output_error"] = self.output_error.to_dict()
-        if self.nested is not None:
-            out["nonlinear_vs_linear"] = self.nested.to_dict()
+        if self.nested is not None:   # with the linear fit itself (fnsi-lab validate can use it)
+            out["nonlinear_vs_linear"] = dict(
+                self.nested.to_dict(),
+                linear_state_space=state_space_json(self.nested.linear.model))
         if s.parameter_search is not None:
             out["parameter_search"] = {k: v for k, v in s.parameter_search.to_dict().items()
                                        if k != "estimates"}
