@@ -129,7 +129,9 @@ class LiveRun:
         self.file_path = file_path
         names = [c.name for c in channels]
         self.groups = vlog.channel_groups(names, [c.quantity for c in channels])
-        vlog.log_signal_styles(rec, self.groups, names)
+        vlog.log_signal_styles(rec, self.groups, names,
+                               directions=[getattr(c, "direction", "") for c in channels],
+                               units=[getattr(c, "unit", "") for c in channels])
         self.service: Any = None
         self.batch_s = batch_s
         self._buf: list[tuple[float, Any]] = []
@@ -399,7 +401,11 @@ def _cmd_live(args: argparse.Namespace) -> int:
     metadata = recording_metadata(config, source)
     identify, what = make_identifier(args, metadata, source.channels)
     groups = sorted({c.quantity for c in source.channels}, key=lambda q: (q != "force", q))
-    rec, sinks = open_stream(args, blueprint(groups), default_rrd=str(output.with_suffix(".rrd")))
+    sizes = {g: sum(c.quantity == g for c in source.channels) for g in groups}
+    units = {g: next((c.unit for c in source.channels if c.quantity == g and c.unit), "")
+             for g in groups}
+    rec, sinks = open_stream(args, blueprint(groups, group_sizes=sizes, group_units=units),
+                             default_rrd=str(output.with_suffix(".rrd")))
     run = LiveRun(rec, source.channels, quiet=args.quiet, decimation=args.decimation,
                   file_path=output)
     service = _service_for(source.channels, source.sample_rate_hz, metadata, identify, run,

@@ -734,8 +734,14 @@ def auto_view(update: ServiceUpdate) -> dict[str, Any]:
     with np.errstate(divide="ignore", invalid="ignore"):
         measured = data.Y[exc, dp] / u
         y_model = res.model.steady_state_output(data)[exc, dp] / u
+    units = ai.identification.units
     view["frf"] = {"frequency_hz": f, "measured": measured,
-                   "linear": res.model.underlying_linear_frf(f)[:, dp, 0], "model": y_model}
+                   "linear": res.model.underlying_linear_frf(f)[:, dp, 0], "model": y_model,
+                   "output": getattr(record.output_channels[dp], "name",
+                                     str(record.output_channels[dp])),
+                   "force": getattr(record.input_channels[0], "name",
+                                    str(record.input_channels[0])),
+                   "unit": units.get("frf")}
     order, freq, cls = [], [], []
     for o in res.stabilisation.orders:
         for fi, c, unst in zip(o.frequency_hz, o.classes, o.unstable):
@@ -761,7 +767,8 @@ def auto_view(update: ServiceUpdate) -> dict[str, Any]:
                                 "full": ai.coefficient_curves.get("full"),
                                 "reduced": ai.coefficient_curves.get("reduced"),
                                 "exact": ai.exact_coefficients,
-                                "excited": data.excited}
+                                "excited": data.excited,
+                                "units": units.get("coefficients")}
     search = ai.identification.session.parameter_search   # clearances/exponents from the data
     if search is not None and search.estimates:
         view["parameters"] = {"profiles": [

@@ -33,7 +33,7 @@ import rerun as rr
 
 from fnsi_lab.viewer import log as vlog
 from fnsi_lab.viewer.blueprint import blueprint
-from fnsi_lab.viewer.cli import APP_ID, rrd_entities, signal_groups
+from fnsi_lab.viewer.cli import APP_ID, rrd_entities, signal_groups, signal_layout
 
 CHROMIUM = os.environ.get("FNSI_LAB_CHROMIUM", "/usr/bin/chromium")
 FLAGS = ["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
@@ -146,7 +146,9 @@ _UPDATE_COLOURS = tuple(c for c in vlog.SIGNAL_PALETTE if len(set(c)) > 1)
 #: poles 195 (60: a pole is ~20 px), coefficient spectra 721 and 826 (300 each: a curve).
 MAIN_CHECKS = {
     0: [("force signal", (0.0, 0.0, 0.55, 0.45), vlog.SIGNAL_PALETTE[0], 1500),
-        ("displacement signals", (0.0, 0.5, 0.55, 1.0), vlog.SIGNAL_PALETTE[1], 1500),
+        # 39 displacement channels in three colour families, one per direction
+        ("displacement signals", (0.0, 0.5, 0.55, 1.0),
+         [c for p in vlog.DIRECTION_PALETTES.values() for c in p], 1500),
         ("natural frequencies of the update", (0.75, 0.0, 1.0, 0.18), _UPDATE_COLOURS, 60),
         ("coefficients of the update", (0.75, 0.2, 1.0, 0.36), vlog.COEFFICIENT_PALETTE[:2],
          12),
@@ -195,16 +197,18 @@ def _failures(png: bytes, checks: Sequence[tuple]) -> list[str]:
 
 
 # ---------------------------------------------------------------------------- test
-def _serve(rec: rr.RecordingStream, groups: Sequence[str] = GROUPS) -> tuple[str, int]:
+def _serve(rec: rr.RecordingStream, groups: Sequence[str] = GROUPS,
+           layout: dict | None = None) -> tuple[str, int]:
     grpc_port, web_port = _free_port(), _free_port()
-    url = rec.serve_grpc(grpc_port=grpc_port, default_blueprint=blueprint(groups))
+    url = rec.serve_grpc(grpc_port=grpc_port,
+                         default_blueprint=blueprint(groups, **(layout or {})))
     rr.serve_web_viewer(web_port=web_port, open_browser=False, connect_to=url)
     return url, web_port
 
 
 def _open_every_tab(rec: rr.RecordingStream, url: str, web_port: int,
                     checks: dict[int, list[tuple]], groups: Sequence[str],
-                    shots: Path) -> dict[int, list[str]]:
+                    shots: Path, layout: dict | None = None) -> dict[int, list[str]]:
     """Open the web viewer on ``url``, select each tab, return its failed checks.
 
     Screenshots are kept as ``shots/tab<k>.png``.
@@ -219,7 +223,8 @@ def _open_every_tab(rec: rr.RecordingStream, url: str, web_port: int,
         page.wait_for_selector("canvas", timeout=60_000)
         for tab in checks:
             if tab:  # select the tab; the timeline stays the blueprint's acq_time
-                rec.send_blueprint(blueprint(groups, active_tab=tab), make_active=True)
+                rec.send_blueprint(blueprint(groups, active_tab=tab, **(layout or {})),
+                                   make_active=True)
             deadline = time.monotonic() + 120  # a software rasterizer on a busy machine
             while True:
                 page.wait_for_timeout(3000)
@@ -267,14 +272,18 @@ def test_the_main_commands_rrd_shows_every_tab(tmp_path):
     # groups, which is the one the .rrd opens with (its stored default blueprint)
     groups = signal_groups(rrd_entities(rrd))
     assert groups == ("force", "displacement")
-    blueprint(groups).save(APP_ID, str(tmp_path / "served.rbl"))
+    sizes, units = signal_layout(rrd)
+    layout = {"group_sizes": sizes, "group_units": units}
+    assert sizes == {"force": 1, "displacement": 39} and units["displacement"] == "mm"
+    blueprint(groups, **layout).save(APP_ID, str(tmp_path / "served.rbl"))
     assert _blueprint_views(rrd) == _blueprint_views(tmp_path / "served.rbl")
     rec = rr.RecordingStream(APP_ID, recording_id="web-main-command")
     try:
-        url, web_port = _serve(rec, groups)
+        url, web_port = _serve(rec, groups, layout)
         rr.send_chunks(RrdReader(str(rrd)).stream().collect(), recording=rec)
         rec.flush()
-        problems = _open_every_tab(rec, url, web_port, MAIN_CHECKS, groups, tmp_path)
+        problems = _open_every_tab(rec, url, web_port, MAIN_CHECKS, groups, tmp_path,
+                                   layout)
     finally:
         rec.disconnect()
     assert not any(problems.values()), f"{problems} (screenshots in {tmp_path})"

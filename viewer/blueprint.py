@@ -14,7 +14,7 @@ the viewer opens); the Order and Frequency tabs are 2D views of static figures
 
 from __future__ import annotations
 
-from typing import Sequence
+from typing import Mapping, Sequence
 
 import rerun.blueprint as rrb
 
@@ -27,8 +27,15 @@ from fnsi_lab.viewer.log import FIGURE_LAYOUT
 DEFAULT_WINDOW_S = 20.0
 
 
+#: Channels above which a signal view hides its legend: a column of 39 names covers the
+#: curves (the channels are told apart by colour family per direction; names on hover).
+MAX_LEGEND_CHANNELS = 8
+
+
 def blueprint(groups: Sequence[str] = ("force", "displacement"), *,
-              window_s: float = DEFAULT_WINDOW_S, active_tab: int = 0) -> rrb.Blueprint:
+              window_s: float = DEFAULT_WINDOW_S, active_tab: int = 0,
+              group_sizes: Mapping[str, int] | None = None,
+              group_units: Mapping[str, str] | None = None) -> rrb.Blueprint:
     """Build the blueprint.
 
     Parameters
@@ -39,6 +46,12 @@ def blueprint(groups: Sequence[str] = ("force", "displacement"), *,
         Width of the visible signal window behind the cursor, seconds.
     active_tab : int
         Tab shown first: 0 Live, 1 Order, 2 Frequency (every tab reads on ``acq_time``).
+    group_sizes : mapping of str to int, optional
+        Channels per group: a group of more than :data:`MAX_LEGEND_CHANNELS` hides its
+        legend (unknown: shown).
+    group_units : mapping of str to str, optional
+        Unit of each group's values, shown in its view's name (``signals: displacement
+        (mm)``).
 
     Returns
     -------
@@ -48,20 +61,28 @@ def blueprint(groups: Sequence[str] = ("force", "displacement"), *,
         paths.TIME_ACQ,
         start=rrb.TimeRangeBoundary.cursor_relative(seconds=-float(window_s)),
         end=rrb.TimeRangeBoundary.cursor_relative(seconds=0.0))
+    sizes, units = dict(group_sizes or {}), dict(group_units or {})
     signal_views = [
-        rrb.TimeSeriesView(origin=paths.signal_group(g), name=f"signals: {g}",
-                           time_ranges=[window])
+        rrb.TimeSeriesView(origin=paths.signal_group(g),
+                           name=f"signals: {g}" + (f" ({units[g]})" if units.get(g) else ""),
+                           time_ranges=[window],
+                           plot_legend=rrb.PlotLegend(
+                               visible=sizes.get(g, 0) <= MAX_LEGEND_CHANNELS))
         for g in groups
     ] or [rrb.TimeSeriesView(origin=paths.SIGNALS, name="signals", time_ranges=[window])]
     live = rrb.Horizontal(
         rrb.Vertical(*signal_views),
         rrb.Vertical(
+            # one series per mode: a legend of 9+ modes is clipped in this short view and
+            # covers the markers; the names show on hover
             rrb.TimeSeriesView(origin=paths.CONVERGENCE_FREQUENCIES,
-                               name="natural frequencies per update (Hz)"),
+                               name="natural frequencies per update (Hz; hover: mode)",
+                               plot_legend=rrb.PlotLegend(visible=False)),
             rrb.TimeSeriesView(origin=paths.CONVERGENCE_COEFFICIENTS,
                                name="coefficients per update (mean Re)"),
-            rrb.TimeSeriesView(origin=paths.STATUS, name="status",
-                               contents=[f"{paths.STATUS}/**", f"- {paths.STATUS_LOG}"]),
+            rrb.TimeSeriesView(origin=paths.STATUS, name="status (hover: quantity)",
+                               contents=[f"{paths.STATUS}/**", f"- {paths.STATUS_LOG}"],
+                               plot_legend=rrb.PlotLegend(visible=False)),
             rrb.TextLogView(origin=paths.STATUS_LOG, name="log"),
             rrb.TextDocumentView(origin=paths.SUMMARY, name="summary"),
         ),

@@ -372,6 +372,34 @@ def rrd_text(path: str | Path, entity: str) -> str | None:
     return text
 
 
+def signal_layout(path: str | Path) -> tuple[dict[str, int], dict[str, str]]:
+    """Channels per signal group and the group's unit, from the series names an .rrd holds
+    (``viewer.log.log_signal_styles`` names a channel ``NC2W-Z [mm]``): the blueprint
+    arguments ``group_sizes`` and ``group_units`` of the recording's own layout."""
+    from rerun.chunk import RrdReader
+
+    from fnsi_lab.viewer import paths
+
+    prefix = paths.SIGNALS + "/"
+    sizes: dict[str, int] = {}
+    units: dict[str, str] = {}
+    for chunk in RrdReader(str(path)).stream().collect().stream():
+        entity = str(chunk.entity_path)
+        if not entity.startswith(prefix) or "/" in entity[len(prefix):]:
+            continue
+        batch = chunk.to_record_batch()
+        if "SeriesLines:names" not in batch.schema.names:
+            continue
+        names = [n for row in batch.column("SeriesLines:names").to_pylist() if row
+                 for n in (row if isinstance(row, list) else [row])]
+        group = entity[len(prefix):]
+        sizes[group] = len(names)
+        found = {n.rsplit("[", 1)[1].rstrip("]") for n in names if n.endswith("]") and "[" in n}
+        if len(found) == 1:
+            units[group] = found.pop()
+    return sizes, units
+
+
 # ---------------------------------------------------------------------------- view command
 def _cmd_view(args: argparse.Namespace) -> int:
     from fnsi_lab.viewer import paths
@@ -414,7 +442,9 @@ def _cmd_view(args: argparse.Namespace) -> int:
         from fnsi_lab.viewer.blueprint import blueprint
 
         args.rrd = None
-        rec, sinks = open_stream(args, blueprint(signal_groups(counts)))
+        sizes, units = signal_layout(args.file)
+        rec, sinks = open_stream(args, blueprint(signal_groups(counts), group_sizes=sizes,
+                                                 group_units=units))
         rr.send_chunks(RrdReader(str(args.file)).stream().collect(), recording=rec)
         for note in sinks.notes:
             print(note, file=sys.stderr)

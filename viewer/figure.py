@@ -24,7 +24,7 @@ import rerun as rr
 #: Plot area of one panel in canvas units (the view scales it to fit).
 PANEL_W, PANEL_H = 1000.0, 420.0
 #: Room around the plot area for tick labels, axis titles and the title.
-MARGIN_LEFT, MARGIN_BOTTOM, MARGIN_TOP = 120.0, 80.0, 50.0
+MARGIN_LEFT, MARGIN_BOTTOM, MARGIN_TOP = 120.0, 110.0, 50.0
 #: Width of the legend column right of the plot area.
 LEGEND_W = 240.0
 MARGIN_RIGHT = LEGEND_W + 20.0
@@ -245,9 +245,9 @@ class Figure:
         # axis would collide with the title
         labels = list(xl) + list(yl) + [p.x.label, p.title]
         pos = np.concatenate([
-            np.c_[xu, np.full(len(xu), top + h + 8)],
+            np.c_[xu, np.full(len(xu), top + h + 14)],
             np.c_[np.full(len(yu), -55.0), yu - 10],
-            [[w / 2, top + h + 40], [w / 2, top - 44]]])
+            [[w / 2, top + h + 64], [w / 2, top - 44]]])  # axis title clear of the ticks
         rec.log(f"{base}/axes/labels", rr.Points2D(pos, labels=labels, colors=[_TEXT],
                                                     radii=rr.Radius.ui_points(0.01),
                                                     show_labels=True), static=True)

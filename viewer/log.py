@@ -28,16 +28,27 @@ _BLUE, _ORANGE, _GREEN = (0, 114, 178), (230, 159, 0), (0, 158, 115)
 _RED, _GREY, _PURPLE, _SKY = (213, 94, 0), (140, 140, 140), (204, 121, 167), (86, 180, 233)
 _BLACK, _YELLOW = (40, 40, 40), (240, 228, 66)
 
+#: Channel colours by measurement direction: one hue family per direction (X blues, Y
+#: greens, Z reds), a shade per node, so 39 channels read as three groups, not as ten
+#: repeating colours (:func:`direction_colours`).
+DIRECTION_PALETTES: dict[str, tuple[tuple[int, int, int], ...]] = {
+    "X": ((8, 48, 107), (8, 81, 156), (33, 113, 181), (66, 146, 198), (107, 174, 214)),
+    "Y": ((0, 68, 27), (0, 109, 44), (35, 139, 69), (65, 171, 93), (116, 196, 118)),
+    "Z": ((103, 0, 13), (165, 15, 21), (203, 24, 29), (239, 59, 44), (251, 106, 74)),
+}
+
 #: Colours cycled over the channels of a group (matplotlib's tab10).
 SIGNAL_PALETTE: tuple[tuple[int, int, int], ...] = (
     (31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
     (140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207))
 
 #: pole class -> (colour, legend) of the stabilisation diagram.
+#: One hue per class: "new" dark (not grey on the grey grid), "+ damping" blue (not an
+#: orange beside the vermillion "unstable").
 POLE_STYLE: dict[str, tuple[tuple[int, int, int], str]] = {
-    "new": ((185, 185, 185), "new pole"),
+    "new": ((60, 60, 60), "new pole"),
     "frequency": (_SKY, "stable freq."),
-    "damping": (_ORANGE, "+ damping"),
+    "damping": (_BLUE, "+ damping"),
     "mode": (_PURPLE, "+ MAC"),
     "stable": (_GREEN, "fully stable"),
     "unstable": (_RED, "unstable"),
@@ -98,14 +109,43 @@ def _robust_range(*arrays: Any) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------- signals
+def direction_colours(directions: Sequence[str]) -> list[tuple[int, int, int]]:
+    """One colour per channel from its direction (``X``, ``-y``, ``Z``...): the direction's
+    hue family of :data:`DIRECTION_PALETTES`, shaded in channel order; channels without a
+    known direction take :data:`SIGNAL_PALETTE` in turn."""
+    seen: dict[str, int] = {}
+    out = []
+    for k, d in enumerate(directions):
+        key = str(d or "").strip().lstrip("+-").upper()[:1]
+        palette = DIRECTION_PALETTES.get(key)
+        if palette is None:
+            out.append(SIGNAL_PALETTE[k % len(SIGNAL_PALETTE)])
+            continue
+        i = seen.get(key, 0)
+        seen[key] = i + 1
+        out.append(palette[i % len(palette)])
+    return out
+
+
 def log_signal_styles(rec: rr.RecordingStream, groups: Mapping[str, Sequence[int]],
-                      channel_names: Sequence[str]) -> None:
-    """Static series names and colours of each channel group (one legend entry per channel)."""
+                      channel_names: Sequence[str],
+                      directions: Sequence[str] | None = None,
+                      units: Sequence[str] | None = None) -> None:
+    """Static series names and colours of each channel group (one legend entry per channel).
+
+    With ``directions`` (one per channel), a group of several channels is coloured by direction
+    (:func:`direction_colours`) and named ``name (direction)``; with ``units`` the names
+    carry the unit (``NC2W-Z [mm]``).
+    """
     for group, cols in groups.items():
-        rec.log(paths.signal_group(group),
-                rr.SeriesLines(names=[channel_names[c] for c in cols],
-                               colors=[SIGNAL_PALETTE[i % len(SIGNAL_PALETTE)]
-                                       for i in range(len(cols))]), static=True)
+        if directions is not None and len(cols) > 1 and any(directions[c] for c in cols):
+            colours = direction_colours([directions[c] for c in cols])
+        else:
+            colours = [SIGNAL_PALETTE[i % len(SIGNAL_PALETTE)] for i in range(len(cols))]
+        names = [channel_names[c] + (f" [{units[c]}]" if units is not None and units[c] else "")
+                 for c in cols]
+        rec.log(paths.signal_group(group), rr.SeriesLines(names=names, colors=colours),
+                static=True)
 
 
 def channel_groups(channel_names: Sequence[str], quantities: Sequence[str]) -> dict[str, list[int]]:
@@ -163,7 +203,9 @@ def _series_style(rec: rr.RecordingStream, entity: str, name: str,
 
 # ---------------------------------------------------------------------------- identification
 def log_frf(rec: rr.RecordingStream, frequency_hz: Any, *, measured: Any = None,
-            linear: Any = None, model: Any = None, update: int | None = None) -> None:
+            linear: Any = None, model: Any = None, output: str | None = None,
+            force: str | None = None, unit: str | None = None,
+            update: int | None = None) -> None:
     """Driving-point FRF against frequency: magnitude (dB) and phase (deg) panels.
 
     Parameters
@@ -172,27 +214,34 @@ def log_frf(rec: rr.RecordingStream, frequency_hz: Any, *, measured: Any = None,
     measured, linear, model : complex array_like, shape (n_lines,), optional
         Measured FRF (output spectrum over force spectrum), synthesised underlying linear
         FRF, and the identified model's FRF at the same lines.
+    output, force : str, optional
+        Names of the response and force channels (the titles name them).
+    unit : str, optional
+        FRF unit (``mm/N``): magnitudes in dB re 1 ``unit``.
     update : int, optional
         Identification update (shown in the title).
     """
     f = np.asarray(frequency_hz, dtype=float).ravel()
     order = frequency_order(f)
     f = f[order]
+    which = f"FRF {output} / {force}" if output and force else "driving-point FRF"
+    db = f"dB re 1 {unit}" if unit else "dB"
     curves = {k: np.asarray(v).ravel()[order] for k, v in
               (("measured", measured), ("model", model), ("linear", linear)) if v is not None}
     mags = {k: magnitude_db(v) for k, v in curves.items()}
     phases = {k: phase_deg(v) for k, v in curves.items()}
     fx = Axis.fit("frequency (Hz)", f, pad=0.0)
-    mag_panel = Panel("magnitude", _title("driving-point FRF magnitude (dB)", update), fx,
-                      Axis.fit("magnitude (dB)", _robust_range(*mags.values())))
-    ph_panel = Panel("phase", "driving-point FRF phase (deg)", fx,
+    mag_panel = Panel("magnitude", _title(f"{which} magnitude ({db})", update), fx,
+                      Axis.fit(f"magnitude ({db})", _robust_range(*mags.values())))
+    ph_panel = Panel("phase", f"{which} phase (deg)", fx,
                      Axis("phase (deg)", -190.0, 190.0))
     for key in ("model", "linear", "measured"):  # measured dots on top of the lines
         if key not in curves:
             continue
         h = curves[key]
         color, name = FRF_STYLE[key]
-        kind, width = ("points", 1.0) if key == "measured" else ("line", 1.5)
+        # measured: markers drawn last (on top), larger than the model line is wide
+        kind, width = ("points", 2.2) if key == "measured" else ("line", 1.2)
         values = {"frequency_hz": f, "re": h.real, "im": h.imag}
         mag_panel.series.append(Series(key, name, f, mags[key], color, kind=kind, width=width,
                                        values=values))
@@ -270,6 +319,13 @@ def log_information_criterion(rec: rr.RecordingStream, orders: Any, criterion: A
                                _BLUE, width=1.5, values=values))
     panel.series.append(Series("criterion_points", "", orders[ok], crit[ok], _BLUE,
                                kind="points", width=2.0, legend=False))
+    # orders without a value (unstable models: infinite criterion) leave gaps: say why, with
+    # a marker at the bottom of the axis for each
+    gap = orders[~ok]
+    panel.series.append(Series("not_fitted", f"order not fitted: unstable ({gap.size})",
+                               gap.astype(float), np.full(gap.size, panel.y.lo * 1.15),
+                               _RED, kind="points", width=2.5, legend=bool(gap.size),
+                               values={"order": gap}))
     sel_x, sel_y = np.zeros(0), np.zeros(0)
     if selected_order is not None:
         hit = np.flatnonzero((orders == int(selected_order)) & ok)
@@ -333,6 +389,7 @@ def log_coefficients(rec: rr.RecordingStream, frequency_hz: Any,
                      full: Mapping[str, Any] | None = None,
                      reduced: Mapping[str, Any] | None = None,
                      exact: Mapping[str, float] | None = None, *, excited: Any = None,
+                     units: Mapping[str, str] | None = None,
                      update: int | None = None) -> None:
     """Real part of each estimated nonlinear coefficient c_a(f), one panel each.
 
@@ -344,8 +401,10 @@ def log_coefficients(rec: rr.RecordingStream, frequency_hz: Any,
     exact : mapping of str to float, optional
         Known values (simulations): drawn for the estimated coefficients only.
     excited : array_like of bool, shape (n_lines,), optional
-        Excited lines: they set the y range (above the excitation band the identified
-        coefficients are extrapolations and may swing far off).
+        Excited lines: they set the x and y ranges (above the excitation band the
+        identified coefficients are extrapolations and may swing far off).
+    units : mapping of str to str, optional
+        Coefficient name -> unit (``N/mm``), shown in the titles and axis labels.
     update : int, optional
         Identification update (shown in the titles).
     """
@@ -365,9 +424,11 @@ def log_coefficients(rec: rr.RecordingStream, frequency_hz: Any,
                (("full", full), ("reduced", reduced)) if name in t}
         known = exact.get(name)
         inc = [float(known)] if known is not None else []
-        panel = Panel(paths.part(name), _title(f"Re {name}", update),
-                      Axis.fit("frequency (Hz)", freq, pad=0.0),
-                      Axis.fit(f"Re {name}",
+        unit = (units or {}).get(name, "")
+        label = f"Re {name}" + (f" ({unit})" if unit else "")
+        panel = Panel(paths.part(name), _title(label, update),
+                      Axis.fit("frequency (Hz)", freq[band], pad=0.02),
+                      Axis.fit(label,
                                _robust_range(*[c.real[band] for c in est.values()]),
                                include=inc, pad=0.3))
         for which, c in est.items():
@@ -377,8 +438,9 @@ def log_coefficients(rec: rr.RecordingStream, frequency_hz: Any,
                                        values={"frequency_hz": freq, "re": c.real,
                                                "im": c.imag}))
         if known is not None:
-            span = [freq.min(), freq.max()] if freq.size else []
-            panel.series.append(Series("exact", f"exact {float(known):.4g}", np.array(span),
+            span = [freq[band].min(), freq[band].max()] if freq.size else []
+            panel.series.append(Series("exact", f"exact {float(known):.4g}"
+                                       + (f" {unit}" if unit else ""), np.array(span),
                                        np.full(len(span), float(known)), _BLACK, width=1.0,
                                        values={"exact": np.array([float(known)])}))
         panels.append(panel)

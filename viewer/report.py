@@ -23,9 +23,9 @@ import numpy as np
 
 #: Stabilisation classes in legend order -> (colour, marker, legend).
 STAB_STYLE: dict[str, tuple[str, str, str]] = {
-    "new": ("#b9b9b9", ".", "new pole"),
+    "new": ("#3c3c3c", ".", "new pole"),
     "frequency": ("#56b4e9", "x", "stable in frequency"),
-    "damping": ("#e69f00", "s", "+ damping"),
+    "damping": ("#0072b2", "s", "+ damping"),
     "mode": ("#cc79a7", "D", "+ mode shape (MAC)"),
     "stable": ("#009e73", "^", "fully stable"),
     "unstable": ("#d55e00", "*", "unstable (zeta < 0)"),
@@ -271,6 +271,12 @@ def figure_criterion(result: Mapping[str, Any]) -> Any:
     v = np.array([np.nan if r.get("value") is None else r["value"] for r in ic], dtype=float)
     ok = np.isfinite(v) & (v > 0)
     ax.semilogy(n[ok], v[ok], "o-", color="#0072b2", ms=3, lw=1.2, label="I(n)")
+    missing = n[~ok]
+    if missing.size and ok.any():  # gaps in the curve: say why, at the bottom of the axis
+        unstable = {int(r["order"]) for r in ic if r.get("stable") is False}
+        why = "unstable model" if set(missing.astype(int)) <= unstable else "no value"
+        ax.semilogy(missing, np.full(missing.size, v[ok].min()), "|", color="#d55e00",
+                    ms=12, mew=1.5, label=f"order not fitted: {why} ({missing.size})")
     sel = result.get("selected_order")
     if sel is not None and np.any(n[ok] == sel):
         ax.semilogy([sel], v[ok][n[ok] == sel][:1], "D", color="#d55e00", ms=8,
@@ -279,7 +285,7 @@ def figure_criterion(result: Mapping[str, Any]) -> Any:
     ax.set_ylabel(f"information criterion ({result.get('criterion', 'I(n)')})")
     ax.set_title("Information criterion")
     ax.grid(alpha=0.3, which="both")
-    ax.legend(fontsize=8)
+    fig.legend(loc="outside right upper", fontsize=8)  # beside the curve, not over it
     return fig
 
 
@@ -314,9 +320,22 @@ def figure_mdi(result: Mapping[str, Any]) -> Any:
     return fig
 
 
+def _band_limits(values: np.ndarray, include: Sequence[float] = (),
+                 pad: float = 0.3) -> tuple[float, float] | None:
+    """y-limits from the values over the excited lines (1st-99th percentile, padded)."""
+    v = np.concatenate([np.ravel(values), np.asarray(include, dtype=float)])
+    v = v[np.isfinite(v)]
+    if not v.size:
+        return None
+    lo, hi = np.percentile(v, [1, 99])
+    span = max(hi - lo, 1e-6 * max(abs(lo), abs(hi)), 1e-12)
+    return lo - pad * span, hi + pad * span
+
+
 def figure_coefficients(result: Mapping[str, Any]) -> Any | None:
-    """Re and Im of each coefficient spectrum c_a(f), mean ± std over the excited lines and
-    the exact value when known; None without coefficients."""
+    """Re and Im of each coefficient spectrum c_a(f), one row each, over the excited band
+    (the lines beyond it are extrapolations that swing off any useful scale), mean ± std
+    over the excited lines and the exact value when known; None without coefficients."""
     spectra = result.get("coefficient_spectra")
     if not spectra or not spectra.get("names"):
         return None
@@ -327,38 +346,46 @@ def figure_coefficients(result: Mapping[str, Any]) -> Any | None:
     if not f.size:
         return None
     excited = np.asarray(spectra.get("excited", np.ones(f.size)), dtype=bool)[order]
+    if not excited.any():
+        excited = np.ones(f.size, bool)
     exact = exact_values(result)
     stats = {c["name"]: c for c in result.get("coefficients") or []}
     names = list(spectra["names"])
-    fig, axes = _figure(9.0, 2.8 * len(names) + 0.6, rows=len(names), sharex=True)
-    for k, (ax, name) in enumerate(zip(axes, names)):
+    fig, axes = _figure(9.0, 2.2 * 2 * len(names) + 0.8, rows=2 * len(names), sharex=True)
+    f_lo, f_hi = float(f[excited].min()), float(f[excited].max())
+    margin = 0.03 * max(f_hi - f_lo, 1e-9)
+    for k, name in enumerate(names):
+        re_ax, im_ax = axes[2 * k], axes[2 * k + 1]
         color = COEFF_COLOURS[k % len(COEFF_COLOURS)]
+        unit = coefficient_unit(result, name)
         c = complex_array(spectra["values"][name])[order]
-        ax.plot(f, c.real, color=color, lw=1.2, label=f"Re {name}")
-        ax.plot(f, c.imag, color=color, lw=0.8, alpha=0.35, label=f"Im {name}")
+        re_ax.plot(f, c.real, color=color, lw=1.4, label=f"Re {name}")
+        im_ax.plot(f, c.imag, color=color, lw=1.4, label=f"Im {name}")
+        im_ax.axhline(0.0, color="#282828", lw=0.8, ls=":", label="0 (a physical "
+                      "coefficient is real)")
         st = stats.get(name)
         if st and st.get("mean_real") is not None:
             m, s = st["mean_real"], st.get("std_real") or 0.0
-            ax.axhspan(m - s, m + s, color=color, alpha=0.15,
-                       label=f"mean ± std over excited lines: {m:.6g} ± {s:.3g}")
+            re_ax.axhspan(m - s, m + s, color=color, alpha=0.15,
+                          label=f"mean ± std over excited lines: {m:.6g} ± {s:.3g}"
+                          + (f" {unit}" if unit else ""))
         if name in exact:
-            ax.axhline(exact[name], color="#282828", lw=1.0, ls="--",
-                       label=f"exact {exact[name]:.6g}")
-        if excited.any():
-            ax.axvspan(f[excited].min(), f[excited].max(), color="#777777", alpha=0.07)
-            # Re sets the scale (Im of a physical coefficient is near 0: it may fall off)
-            band_vals = np.concatenate([c.real[excited], [exact.get(name, np.nan)]])
-            band_vals = band_vals[np.isfinite(band_vals)]
-            if band_vals.size:  # the excited band sets the scale, not extrapolated lines
-                lo, hi = np.percentile(band_vals, [1, 99])
-                span = max(hi - lo, 1e-12)
-                ax.set_ylim(lo - 0.3 * span, hi + 0.3 * span)
-        unit = coefficient_unit(result, name)
-        ax.set_ylabel(f"{name} ({unit})" if unit else name)
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=7, loc="upper right")
-    axes[0].set_title("Nonlinear coefficient spectra (grey band: excited lines; "
-                      "the scale is set by Re there)")
+            re_ax.axhline(exact[name], color="#282828", lw=1.0, ls="--",
+                          label=f"exact {exact[name]:.6g}" + (f" {unit}" if unit else ""))
+        for ax, part, include in ((re_ax, c.real, [exact.get(name, np.nan)]),
+                                  (im_ax, c.imag, [0.0])):
+            lim = _band_limits(part[excited], include)  # the excited band sets the scale
+            if lim is not None:
+                ax.set_ylim(*lim)
+            ax.grid(alpha=0.3)
+            ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0),
+                      borderaxespad=0.0)  # beside the plot, not over the curve
+        re_ax.set_ylabel(f"Re ({unit})" if unit else "Re")
+        im_ax.set_ylabel(f"Im ({unit})" if unit else "Im")
+        re_ax.set_title(f"{name}" + (f" ({unit})" if unit else ""), fontsize=9, loc="left")
+    axes[0].set_xlim(f_lo - margin, f_hi + margin)
+    fig.suptitle("Nonlinear coefficient spectra over the excited lines "
+                 f"({f_lo:.4g}-{f_hi:.4g} Hz)", fontsize=11)
     axes[-1].set_xlabel("frequency (Hz)")
     return fig
 
@@ -382,9 +409,12 @@ def figure_frf(result: Mapping[str, Any], output: str | None = None) -> Any | No
     if not f.size or "underlying_linear" not in curves:
         return None
     fig, (mag, ph) = _figure(9.0, 6.0, rows=2, sharex=True)
-    for key, label, style in (("measured", "measured", dict(ls="none", marker=".", ms=2.5)),
-                              ("model", "model", dict(lw=1.2)),
-                              ("underlying_linear", "underlying linear", dict(lw=1.5))):
+    # measured: markers on top; model: a thin line under them; underlying linear: dashed
+    for key, label, style in (("measured", "measured (markers)",
+                               dict(ls="none", marker="o", ms=3.0, mew=0, zorder=3)),
+                              ("model", "model (line)", dict(lw=1.0, zorder=2)),
+                              ("underlying_linear", "underlying linear (dashed)",
+                               dict(lw=1.4, ls="--", zorder=1))):
         if key not in curves:
             continue
         h = curves[key]
@@ -392,7 +422,7 @@ def figure_frf(result: Mapping[str, Any], output: str | None = None) -> Any | No
         ph.plot(f, phase_deg(h), color=FRF_STYLE[key], label=label, **style)
     name = (frf.get("outputs") or ["?"])[i]
     force = (frf.get("inputs") or ["force"])[0]
-    mag.set_title(f"FRF {name} / {force}")
+    mag.set_title(f"FRF of {name} over {force}")
     unit = frf_unit(result)
     mag.set_ylabel(f"magnitude (dB re 1 {unit})" if unit else "magnitude (dB)")
     ph.set_ylabel("phase (deg)")
@@ -400,7 +430,8 @@ def figure_frf(result: Mapping[str, Any], output: str | None = None) -> Any | No
     ph.set_xlabel("frequency (Hz)")
     for ax in (mag, ph):
         ax.grid(alpha=0.3)
-    mag.legend(fontsize=8)
+    fig.legend(*mag.get_legend_handles_labels(), loc="outside lower center", ncol=3,
+               fontsize=8)  # below the plots, not over the peaks
     return fig
 
 
