@@ -45,3 +45,17 @@ def test_the_report_uses_the_json_fate_words():
     table = {r["f (Hz)"]: r["fate"] for r in mode_rows(result)}
     assert table["37.47"] == "not detectable" and table["11.01"] == "physical"
     assert "not detectable: above the MDI threshold but dropped" in mdi_caption(result)
+
+
+def test_stabilisation_classes_and_fates_are_far_apart_in_colour():
+    """Two classes must not read as one (issue 27: '+ damping' and 'unstable' were two
+    oranges, 'new pole' grey on the grey grid): every pair differs by >= 100 in RGB L1."""
+    from itertools import combinations
+
+    from fnsi_lab.viewer.log import POLE_STYLE
+
+    for style in (POLE_STYLE, VIEWER_STYLE):
+        for (a, (ca, _)), (b, (cb, _)) in combinations(style.items(), 2):
+            assert sum(abs(x - y) for x, y in zip(ca, cb)) >= 100, (a, b)
+    grid = (225, 225, 225)
+    assert sum(abs(x - y) for x, y in zip(POLE_STYLE["new"][0], grid)) >= 300

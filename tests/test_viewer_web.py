@@ -154,8 +154,14 @@ MAIN_CHECKS = {
          12),
         ("status of the update", (0.75, 0.42, 1.0, 0.58), _UPDATE_COLOURS, 60)],
     1: [("stabilisation diagram", (0.0, 0.0, 0.49, 1.0), vlog.POLE_STYLE["stable"][0], 400),
+        # each class in its own colour, the few "+ damping" (9) and "new" (~20) poles too:
+        # a marker is ~10 px (issue 27: they were orange like "unstable", grey on grey)
+        ("+ damping poles", (0.0, 0.0, 0.49, 1.0), vlog.POLE_STYLE["damping"][0], 30),
+        ("new poles", (0.0, 0.0, 0.49, 1.0), vlog.POLE_STYLE["new"][0], 30),
         ("information criterion", (0.6, 0.0, 0.92, 1.0), (0, 114, 178), 300)],
     2: [("FRF model", (0.0, 0.0, 0.40, 1.0), vlog.FRF_STYLE["model"][0], 400),
+        # the measured markers drawn on top of the model line (issue 27: hidden under it)
+        ("FRF measured", (0.0, 0.0, 0.40, 1.0), vlog.FRF_STYLE["measured"][0], 400),
         ("FRF underlying linear", (0.0, 0.0, 0.40, 1.0), vlog.FRF_STYLE["linear"][0], 400),
         ("MDI of the physical poles", (0.52, 0.0, 0.905, 0.48), (0, 158, 115), 60),
         ("coefficient NC2-Z:neg", (0.52, 0.52, 0.87, 1.0), vlog.COEFFICIENT_PALETTE[0], 300),

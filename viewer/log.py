@@ -43,10 +43,10 @@ SIGNAL_PALETTE: tuple[tuple[int, int, int], ...] = (
     (140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207))
 
 #: pole class -> (colour, legend) of the stabilisation diagram.
-#: One hue per class: "new" dark (not grey on the grey grid), "+ damping" blue (not an
-#: orange beside the vermillion "unstable").
+#: One hue per class: "new" black (not grey on the grey grid; the label boxes are 55 grey),
+#: "+ damping" blue (not an orange beside the vermillion "unstable").
 POLE_STYLE: dict[str, tuple[tuple[int, int, int], str]] = {
-    "new": ((60, 60, 60), "new pole"),
+    "new": ((0, 0, 0), "new pole"),
     "frequency": (_SKY, "stable freq."),
     "damping": (_BLUE, "+ damping"),
     "mode": (_PURPLE, "+ MAC"),
@@ -55,15 +55,15 @@ POLE_STYLE: dict[str, tuple[tuple[int, int, int], str]] = {
 }
 
 #: A pole's fate (ident.pole_fate: the words of the terminal, the JSON and the report) ->
-#: (colour, legend). Kept poles in greens/blues, each reason for dropping its own colour.
+#: (colour, legend): every pair far apart in colour (tests/test_pole_fate.py).
 FATE_STYLE: dict[str, tuple[tuple[int, int, int], str]] = {
     "physical": (_GREEN, "physical"),
     "rescued": (_BLUE, "physical (stabilisation)"),
-    "split": (_PURPLE, "split mode, left out"),
+    "split": ((148, 103, 189), "split mode, left out"),
     "spurious": (_RED, "spurious by MDI"),
-    "not_detectable": (_ORANGE, "not detectable"),
+    "not_detectable": (_SKY, "not detectable"),
     "not_stabilised": ((140, 86, 75), "not stabilised"),
-    "mains_hum": ((85, 85, 85), "mains hum"),
+    "mains_hum": (_YELLOW, "mains hum"),
     "unstable": (_BLACK, "unstable"),
     "out_of_band": ((170, 170, 170), "out of band"),
 }

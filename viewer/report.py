@@ -23,8 +23,8 @@ import numpy as np
 
 #: Stabilisation classes in legend order -> (colour, marker, legend).
 STAB_STYLE: dict[str, tuple[str, str, str]] = {
-    "new": ("#3c3c3c", ".", "new pole"),
-    "frequency": ("#56b4e9", "x", "stable in frequency"),
+    "new": ("#3c3c3c", "o", "new pole"),
+    "frequency": ("#56b4e9", "X", "stable in frequency"),
     "damping": ("#0072b2", "s", "+ damping"),
     "mode": ("#cc79a7", "D", "+ mode shape (MAC)"),
     "stable": ("#009e73", "^", "fully stable"),
@@ -36,11 +36,11 @@ FRF_STYLE = {"measured": "#282828", "model": "#e69f00", "underlying_linear": "#0
 FATE_STYLE: dict[str, tuple[str, str]] = {
     "physical": ("#009e73", "o"),
     "rescued": ("#0072b2", "s"),
-    "split": ("#cc79a7", "D"),
+    "split": ("#9467bd", "D"),
     "spurious": ("#d55e00", "x"),
-    "not_detectable": ("#e69f00", "v"),
+    "not_detectable": ("#56b4e9", "v"),
     "not_stabilised": ("#8c564b", "^"),
-    "mains_hum": ("#555555", "*"),
+    "mains_hum": ("#f0e442", "*"),
     "unstable": ("#000000", "+"),
     "out_of_band": ("#aaaaaa", "."),
 }
@@ -247,8 +247,10 @@ def figure_stabilisation(result: Mapping[str, Any]) -> Any:
         if not sel:
             continue
         color, marker, label = STAB_STYLE.get(cls, ("#777777", "o", str(cls)))
-        ax.scatter([r["order"] for r in sel], [r["frequency_hz"] for r in sel], s=14,
-                   c=color, marker=marker, label=f"{label} ({len(sel)})", linewidths=0.8)
+        ax.scatter([r["order"] for r in sel], [r["frequency_hz"] for r in sel],
+                   s=10 if cls == "new" else 22, c=color, marker=marker,
+                   label=f"{label} ({len(sel)})", linewidths=0.5,
+                   zorder=4 if cls in ("unstable", "new") else 3)
     _mark_order(ax, result.get("selected_order"))
     ax.set_xlabel("model order")
     ax.set_ylabel("pole frequency (Hz)")
