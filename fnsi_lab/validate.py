@@ -17,13 +17,14 @@ from __future__ import annotations
 
 import difflib
 from pathlib import Path
-from typing import Any, Iterable, Mapping, Sequence
+from typing import Any, Iterable, Mapping, Sequence, TypeVar, overload
 
 import yaml
 
 from fnsi_lab.errors import ConfigError
 
 _MISSING = object()
+_Choice = TypeVar("_Choice", bound=str)
 
 
 def load_yaml(path: str | Path, *, missing_fix: str = "check the path") -> tuple[Any, str]:
@@ -116,6 +117,19 @@ class Section:
             hint = f"did you mean {close[0]!r}? " if close else ""
             raise self.error(key, f"{value!r} is not allowed", fix=f"{hint}use one of {list(choices)}")
         return value
+
+    @overload
+    def choice(self, key: str, choices: Sequence[_Choice], default: None) -> _Choice | None: ...
+
+    @overload
+    def choice(self, key: str, choices: Sequence[_Choice], default: str = ...) -> _Choice: ...
+
+    def choice(self, key: str, choices: Sequence[_Choice], default: Any = _MISSING
+               ) -> _Choice | None:
+        """One of ``choices`` (:meth:`string`), typed as they are: choices given as literal
+        strings give a literal type. None when absent with the default None."""
+        value = self.string(key, default, choices=choices)
+        return None if value is None else next(c for c in choices if c == value)
 
     def boolean(self, key: str, default: Any = _MISSING) -> bool:
         """A true/false value."""

@@ -372,22 +372,21 @@ def identify_auto(data, options: AutoOptions | dict | None = None, *,
                                weighted=options.weighted)
     # the answer: the reduced model, unless the reduction made the coefficients less
     # consistent than the model it came from (then removing those poles cost information)
-    final = "full"
+    final, answer = "full", full
     rho_full = rho_reduced = float("nan")
     if reduced is not None:
-        final = "reduced"
+        final, answer = "reduced", reduced
         if spread is not None:
             rho_full, rho_reduced = spread(full), spread(reduced)
             # "less consistent" with the tolerance of the order gate: the spread of orders
             # that agree (spread_factor); a strict comparison answered full models holding
             # spurious in-band poles for a 1 % smaller spread (Silverbox, docs/robust.md)
             if np.isfinite(rho_full) and not rho_reduced <= options.spread_factor * rho_full:
-                final = "full"
+                final, answer = "full", full
     timings["reduction"] = time.perf_counter() - t4
 
     # confidence, judged on the answer: a model that keeps poles in the band of interest
     # that are not physical modes, or modes barely above the residual, is not "clear"
-    answer = reduced if final == "reduced" else full
     ans = answer.poles
     n_inband_answer = int(np.sum(ans.is_mode & (ans.natural_frequency_hz >= boi[0])
                                  & (ans.natural_frequency_hz <= boi[1])))

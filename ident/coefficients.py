@@ -18,7 +18,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from fnsi_lab.ident.basis import Nonlinearity, coefficient_names
-from fnsi_lab.ident.errors import ChannelError, NotIdentifiableError
+from fnsi_lab.ident.errors import ChannelError, IdentError, NotIdentifiableError
 from fnsi_lab.ident.fnsi import StateSpaceModel, transfer_discrete
 from fnsi_lab.ident.periodic import FrequencyData
 
@@ -271,6 +271,8 @@ def transfer_at_lines(model: StateSpaceModel, frequencies_hz: np.ndarray,
     """
     f = np.asarray(frequencies_hz, float).reshape(-1)
     if model.time_base == "bilinear":
+        if model.bilinear_period_s is None:
+            raise IdentError("time_base 'bilinear' needs bilinear_period_s")
         z = np.exp(2j * np.arctan(np.pi * f * float(model.bilinear_period_s)))
     else:
         z = np.exp(2j * np.pi * f / model.sample_rate_hz)

@@ -43,14 +43,14 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from fnsi_lab.errors import ConfigError
 from fnsi_lab.validate import Section, load_yaml
 from fnsi_lab.ident.basis import KINDS, Nonlinearity, ParameterSpace
 from fnsi_lab.ident.errors import IdentConfigError, IdentError
 from fnsi_lab.ident.options import AutoOptions, parse_orders
-from fnsi_lab.ident.periodic import OUTPUT_QUANTITIES
+from fnsi_lab.ident.periodic import OUTPUT_QUANTITIES, OutputQuantity
 
 WEIGHTINGS = ("auto", "none", "noise")
 #: ``refine:`` choices: ``auto`` refines noisy data with basis functions by their output error
@@ -77,7 +77,7 @@ class IdentConfig:
     outputs: tuple[str, ...] | None = None
     samples_per_period: int | None = None
     transient_periods: int | None = None
-    output_quantity: str | None = None
+    output_quantity: OutputQuantity | None = None
     order: int | None = None
     max_order: int | None = None
     block_rows: int | None = None
@@ -85,8 +85,8 @@ class IdentConfig:
     weighting: str = "auto"
     highpass_hz: float | None = None
     steady_state_tolerance: float = 0.05
-    steady_periods: str = "auto"
-    time_base: str = "auto"
+    steady_periods: Literal["auto", "all"] = "auto"
+    time_base: Literal["auto", "band-limited", "zoh", "bilinear"] = "auto"
     bilinear_period_s: float | None = None
     basis_oversample: int = 8
     integration_min_snr: float | None = 4.0
@@ -314,7 +314,8 @@ def parse_ident_config(data: Any, *, file: str | None = None) -> IdentConfig:
     """
     try:
         sec = Section(_coerce(data) if isinstance(data, dict) else data, file=file)
-        band = sec.numbers("band_hz", length=2)
+        band_lo, band_hi = sec.numbers("band_hz", length=2)
+        band = (band_lo, band_hi)
         if not 0 <= band[0] < band[1]:
             raise sec.error("band_hz", f"need 0 <= f_min < f_max, got {list(band)}")
         nls = []
@@ -346,16 +347,16 @@ def parse_ident_config(data: Any, *, file: str | None = None) -> IdentConfig:
             band_hz=band, nonlinearities=tuple(nls), inputs=tuple(inputs), outputs=outputs,
             samples_per_period=sec.integer("samples_per_period", None, minimum=2),
             transient_periods=sec.integer("transient_periods", None, minimum=0),
-            output_quantity=sec.string("output_quantity", None, choices=OUTPUT_QUANTITIES),
+            output_quantity=sec.choice("output_quantity", OUTPUT_QUANTITIES, None),
             order=order, max_order=max_order,
             block_rows=sec.integer("block_rows", None, minimum=2),
             d_zero=sec.boolean("d_zero", None) if sec.raw("d_zero", None) is not None else None,
             weighting=sec.string("weighting", "auto", choices=WEIGHTINGS),
             highpass_hz=sec.number("highpass_hz", None, nonnegative=True),
             steady_state_tolerance=sec.number("steady_state_tolerance", 0.05, positive=True),
-            steady_periods=sec.string("steady_periods", "auto", choices=("auto", "all")),
-            time_base=sec.string("time_base", "auto",
-                                 choices=("auto", "band-limited", "zoh", "bilinear")),
+            steady_periods=sec.choice("steady_periods", ("auto", "all"), "auto"),
+            time_base=sec.choice("time_base", ("auto", "band-limited", "zoh", "bilinear"),
+                                 "auto"),
             bilinear_period_s=sec.number("bilinear_period_s", None, positive=True),
             basis_oversample=sec.integer("basis_oversample", 8, minimum=1),
             integration_min_snr=sec.number("integration_min_snr", 4.0, nonnegative=True),

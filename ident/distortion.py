@@ -918,16 +918,15 @@ def compare_levels(records: Sequence[RecordAnalysis], *, max_shift: float = 0.5)
     base = recs[0].resonances
     tracks: list[list[Resonance | None]] = [[r] for r in base]
     for rec in recs[1:]:
-        last = [t[-1] for t in tracks]
-        alive = [i for i, r in enumerate(last) if r is not None]
-        pairs = _mutual_nearest([last[i].frequency_hz for i in alive],
+        alive = [(i, t[-1]) for i, t in enumerate(tracks) if t[-1] is not None]
+        pairs = _mutual_nearest([r.frequency_hz for _, r in alive],
                                 [r.frequency_hz for r in rec.resonances], max_shift)
-        matched = {alive[k]: rec.resonances[j] for k, j in pairs.items()}
+        matched = {alive[k][0]: rec.resonances[j] for k, j in pairs.items()}
         for i, t in enumerate(tracks):
             t.append(matched.get(i))
     res_rows = []
-    for t in tracks:
-        f0 = t[0].frequency_hz
+    for first, t in zip(base, tracks):
+        f0 = first.frequency_hz
         res_rows.append({
             "frequency_hz": [None if r is None else r.frequency_hz for r in t],
             "damping_ratio": [None if r is None else r.damping_ratio for r in t],
@@ -937,8 +936,9 @@ def compare_levels(records: Sequence[RecordAnalysis], *, max_shift: float = 0.5)
     out_rows = []
     for name in names:
         row: dict = {"name": name}
-        per = [next((o for o in rec.outputs if o.name == name), None) for rec in recs]
-        if any(o is None for o in per):
+        found = [next((o for o in rec.outputs if o.name == name), None) for rec in recs]
+        per = [o for o in found if o is not None]
+        if len(per) < len(found):
             continue
         for key in ("output_db", "noise_db", "distortion_db", "odd_distortion_db",
                     "even_distortion_db", "nonlinear"):

@@ -29,7 +29,8 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from fnsi_lab.ident.errors import ChannelError, IdentDataError, IdentError
-from fnsi_lab.ident.periodic import OUTPUT_QUANTITIES, as_periodic, cut_realizations
+from fnsi_lab.ident.periodic import (OUTPUT_QUANTITIES, OutputQuantity, as_periodic,
+                                     cut_realizations)
 
 
 @dataclass(frozen=True, eq=False)
@@ -63,7 +64,7 @@ class IdentInput:
     output_channels: tuple[str, ...]
     transient_periods: int | None = None
     excited_lines: np.ndarray | None = None
-    output_quantity: str | None = None
+    output_quantity: OutputQuantity | None = None
     truth: dict | None = None
     path: str = ""
     notes: tuple[str, ...] = field(default=())
@@ -156,16 +157,17 @@ def input_from_arrays(arrays: Mapping[str, Any], path: str = "",
             raise IdentDataError(f"{path}: 'excited_lines' must be DFT bins 1 .. N/2-1 of one "
                                  f"period (N = {u4.shape[2]}), got {exc_lines[:5]}...")
         exc_lines = exc_lines.astype(int)
-    q = arrays.get("quantity")
-    q = None if q is None else str(np.asarray(q).squeeze())
+    given = arrays.get("quantity")
+    q = None if given is None else str(np.asarray(given).squeeze())
     if q is not None and q not in OUTPUT_QUANTITIES:
         raise IdentDataError(f"{path}: quantity {q!r} is not one of {list(OUTPUT_QUANTITIES)}")
+    quantity = None if q is None else OUTPUT_QUANTITIES[OUTPUT_QUANTITIES.index(q)]
     return IdentInput(u=u4, y=y4, sample_rate_hz=float(fs[0]), samples_per_period=u4.shape[2],
                       input_channels=_names(arrays.get("input_channels"), u4.shape[3], "u",
                                             "input_channels", path),
                       output_channels=_names(arrays.get("channels"), y4.shape[3], "y",
                                              "channels", path),
-                      output_quantity=q, path=path, excited_lines=exc_lines)
+                      output_quantity=quantity, path=path, excited_lines=exc_lines)
 
 
 def select_channels(inp: IdentInput, *, outputs: Sequence[str] | None = None,

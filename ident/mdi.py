@@ -248,7 +248,7 @@ def modal_decomposition(a, b, c):
     return lam, c_hat, b_hat
 
 
-def _pair_up(lam, rel_tol=1e-8):
+def _pair_up(lam: np.ndarray, rel_tol: float = 1e-8) -> list[tuple[int, ...]]:
     """Group eigenvalues into conjugate pairs and real poles.
 
     Returns a list of tuples ``(i,)`` (real or unpaired) or ``(i, j)`` with ``Im lam[i] > 0``

@@ -138,8 +138,8 @@ class AutoOptions:
     ic_band: Any = "auto"
     criterion: str = "mdl"
     band_of_interest_hz: tuple | None = None
-    mdi_norm: str = "h2"
-    input_scaling: str = "default"
+    mdi_norm: mdi_mod.MdiNorm = "h2"
+    input_scaling: mdi_mod.InputScaling = "default"
     output_scaling: str = "rms"
     require_stabilised: bool = True
     min_physical: int = 1

@@ -25,7 +25,7 @@ from fnsi_lab.ident.noise import (mains_contaminated_lines, mains_outlier_lines,
                                   resolution_variance)
 
 OutputQuantity = Literal["displacement", "velocity", "acceleration"]
-OUTPUT_QUANTITIES: tuple[str, ...] = ("displacement", "velocity", "acceleration")
+OUTPUT_QUANTITIES: tuple[OutputQuantity, ...] = ("displacement", "velocity", "acceleration")
 #: Above this size the noise covariance keeps only its diagonal when ``P - 1 < 2 p`` (then
 #: the weighting uses the variances anyway, ident.weights.inverse_covariance).
 _FULL_COV_MAX_BYTES = 256 * 2 ** 20
@@ -431,7 +431,7 @@ def prepare_frequency_data(record: Any = None, *, u: Any = None, y: Any = None,
                            output_quantity: OutputQuantity = "displacement",
                            output_names: Sequence[str] | None = None,
                            input_names: Sequence[str] | None = None,
-                           excited_lines: Sequence[int] | None = None,
+                           excited_lines: Sequence[int] | np.ndarray | None = None,
                            highpass_hz: float | None = None,
                            excitation_threshold: float = 1e-3,
                            steady_state_tolerance: float = 0.05,
@@ -655,7 +655,8 @@ def prepare_frequency_data(record: Any = None, *, u: Any = None, y: Any = None,
     Yq_all = (np.fft.rfft(Y4, axis=2) / N                                  # (R, P, bins, p)
               if P >= 2 and (drop_mains or noise_estimate in ("auto", "periods")) else None)
     # lines where mains hum stands out of the noise are left out of the processed set
-    hum_lines, hum_hz = np.zeros(0, int), []
+    hum_lines: np.ndarray = np.zeros(0, int)
+    hum_hz: list[float] = []
     if drop_mains:
         bins = noise_lines(grid.lines, grid.step, grid.offset, N // 2 + 1, fs, N)
         hum_lines, hum_hz = mains_contaminated_lines(Y_all, U_all, bins, grid.lines, grid.step,
@@ -688,7 +689,8 @@ def prepare_frequency_data(record: Any = None, *, u: Any = None, y: Any = None,
                           "integrated without a noise check; with noisy data set highpass_hz "
                           f"(e.g. {f_min:g}, the band's lower edge) or record more periods",
                           IdentWarning, stacklevel=2)
-        q_list, qd_list = [], []
+        q_list: list[np.ndarray] = []
+        qd_list: list[np.ndarray] = []    # velocities, when a basis function reads them
         for r in range(R):
             # accelerations: lines buried in noise would dominate after double integration
             g = (noise_gain(Y4[r], integration_min_snr)
@@ -704,7 +706,8 @@ def prepare_frequency_data(record: Any = None, *, u: Any = None, y: Any = None,
                 qd = integrate_periodic(y_avg[r], fs, 1, hp, gain=g) if need_v else None
             # only the channels the basis functions read, on the band-limited interpolation
             q_list.append(interpolate_periodic(q[:, used], basis_oversample))
-            qd_list.append(None if qd is None else interpolate_periodic(qd[:, used], basis_oversample))
+            if qd is not None:
+                qd_list.append(interpolate_periodic(qd[:, used], basis_oversample))
         motion_noise = noise_spectrum = noise_cross = line_noise = None
         if P >= 2:
             # per-line noise of the averaged motion, from the period-to-period spread
@@ -740,6 +743,8 @@ def prepare_frequency_data(record: Any = None, *, u: Any = None, y: Any = None,
         raise IdentError(f"noise_estimate {noise_estimate!r} is not one of "
                          "['auto', 'periods', 'lines', 'none']")
     if P >= 2 and noise_estimate in ("auto", "periods"):
+        if Yq_all is None:   # computed above whenever the periods give the noise
+            raise IdentError("the per-period spectra for the noise estimate are missing")
         Yq = Yq_all[:, :, K]  # (R, P, F0, p)
         dev = Yq - Yf[:, None]
         if P - 1 < 2 * p and R * K.size * p * p * 16 > _FULL_COV_MAX_BYTES:
@@ -1050,8 +1055,8 @@ def data_report(data: FrequencyData) -> dict:
             "periods": data.periods}
 
 
-def cut_realizations(x: np.ndarray, starts: Sequence[int], samples_per_period: int, *,
-                     transient_samples: int = 0, periods: int | None = None) -> np.ndarray:
+def cut_realizations(x: np.ndarray, starts: Sequence[int] | np.ndarray,
+                     samples_per_period: int, *, transient_samples: int = 0, periods: int | None = None) -> np.ndarray:
     """Cut a long record with several realisations into ``(R, P, N, channels)``.
 
     Lab multisine tests often record every realisation in one file: realisation ``r``
