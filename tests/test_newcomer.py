@@ -80,6 +80,7 @@ TABLE_CASES: dict[str, list[list[str]]] = {
     "import": [["import", "lab.csv", "--out", "imported.mcap", "--inputs", "F"]],
     "export": [["export", "result.json", "--uff", "result.uff", "--csv", "tables"]],
     "validate": [["validate", "result.json", "acquired.mcap", "--json", "validation.json"]],
+    "analyse": [["analyse", "smallsat.mcap"]],
 }
 
 
