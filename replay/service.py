@@ -786,7 +786,8 @@ def auto_view(update: ServiceUpdate) -> dict[str, Any]:
                                       "damping_ratio": modes["damping_ratio"],
                                       "selected_order": [res.selected_order],
                                       "log10_separation_ratio": [log_sep]},
-                           "coefficients": coefficient_means(ai)}
+                           "coefficients": coefficient_means(ai),
+                           "units": units.get("coefficients")}
     view["summary"] = summary_markdown(
         f"Identification update {update.update} ({update.n_periods} steady periods)",
         summary_rows(update), mode_table(res, left_out_hz(ai)))

@@ -449,7 +449,8 @@ def log_coefficients(rec: rr.RecordingStream, frequency_hz: Any,
 
 def log_convergence(rec: rr.RecordingStream, update: int, acq_time_s: float,
                     values: Mapping[str, Any],
-                    coefficients: Mapping[str, float] | None = None) -> None:
+                    coefficients: Mapping[str, float] | None = None,
+                    units: Mapping[str, str] | None = None) -> None:
     """Estimates after one identification update, on the ``update`` and ``acq_time`` timelines.
 
     Parameters
@@ -465,6 +466,8 @@ def log_convergence(rec: rr.RecordingStream, update: int, acq_time_s: float,
     coefficients : mapping of str to float, optional
         Coefficient name -> headline estimate (e.g. mean Re c_a over the excited lines),
         one entity each under :data:`viewer.paths.CONVERGENCE_COEFFICIENTS`.
+    units : mapping of str to str, optional
+        Coefficient name -> unit (``N/mm``), in the series names.
     """
     index = [rr.TimeColumn(paths.TIME_UPDATE, sequence=[int(update)]),
              rr.TimeColumn(paths.TIME_ACQ, duration=[float(acq_time_s)])]
@@ -484,7 +487,9 @@ def log_convergence(rec: rr.RecordingStream, update: int, acq_time_s: float,
             send(paths.convergence_mode(quantity, i + 1), float(x), label,
                  SIGNAL_PALETTE[i % len(SIGNAL_PALETTE)])
     for k, (name, value) in enumerate((coefficients or {}).items()):
-        send(paths.convergence_coefficient(name), float(value), f"{name} (mean Re)",
+        unit = (units or {}).get(name)
+        send(paths.convergence_coefficient(name), float(value),
+             f"{name} (mean Re" + (f", {unit})" if unit else ")"),
              COEFFICIENT_PALETTE[k % len(COEFFICIENT_PALETTE)])
 
 
