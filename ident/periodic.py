@@ -25,6 +25,8 @@ from fnsi_lab.ident.noise import (mains_contaminated_lines, mains_outlier_lines,
                                   resolution_variance)
 
 OutputQuantity = Literal["displacement", "velocity", "acceleration"]
+#: How the DT model is read at the lines (FrequencyData.time_base; ident.fnsi.TIME_BASES).
+TimeBase = Literal["band-limited", "zoh", "bilinear"]
 OUTPUT_QUANTITIES: tuple[OutputQuantity, ...] = ("displacement", "velocity", "acceleration")
 #: Above this size the noise covariance keeps only its diagonal when ``P - 1 < 2 p`` (then
 #: the weighting uses the variances anyway, ident.weights.inverse_covariance).
@@ -173,12 +175,12 @@ class FrequencyData:
     input_names: tuple[str, ...]
     excited: np.ndarray
     basis_names: tuple[str, ...] = ()
-    output_quantity: str = "displacement"
+    output_quantity: OutputQuantity = "displacement"
     n_periods: int = 1
     n_realizations: int = 1
     band_hz: tuple[float, float] = (0.0, np.inf)
     steady_state_error: float = 0.0
-    time_base: str = "band-limited"
+    time_base: TimeBase = "band-limited"
     bilinear_period_s: float | None = None
     motion: "BasisMotion | None" = None
     noise_source: str = "none"

@@ -20,7 +20,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from fnsi_lab.ident.periodic import FrequencyData
+from fnsi_lab.ident.periodic import FrequencyData, TimeBase
 
 __all__ = ["with_time_base", "choose_time_base", "BILINEAR_MARGIN"]
 
@@ -31,7 +31,7 @@ __all__ = ["with_time_base", "choose_time_base", "BILINEAR_MARGIN"]
 BILINEAR_MARGIN = 0.8
 
 
-def with_time_base(data: FrequencyData, time_base: str, bilinear_period_s: float | None = None
+def with_time_base(data: FrequencyData, time_base: TimeBase, bilinear_period_s: float | None = None
                    ) -> FrequencyData:
     """The same spectra with the line map of another time base.
 
