@@ -310,7 +310,9 @@ def acquire(config: Any = None, out: str | os.PathLike[str] | None = None, *,
     from fnsi_lab.outputs import check_output_path
 
     cfg = config if isinstance(config, ExperimentConfig) else load_experiment(config)
-    path = check_output_path(out if out is not None else cfg.output, force=force)
+    path = check_output_path(out if out is not None else cfg.output, force=force,
+                             inputs=[config if not isinstance(config, ExperimentConfig) else None,
+                                     cfg.file])
     return record_experiment(cfg, path, realtime=realtime)
 
 

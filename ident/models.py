@@ -42,8 +42,9 @@ def model_at_order(decomp: SubspaceDecomposition, data: FrequencyData, order: in
     """
     n = int(order)
     if not 1 <= n <= decomp.max_order:
-        raise IdentError(f"order {n} is outside 1..{decomp.max_order} (max order of this "
-                         "decomposition)")
+        raise IdentError(f"order: {n} is outside 1..{decomp.max_order}, the largest order "
+                         "of this decomposition (fix: a lower order, or a larger max_order / "
+                         "--max-order or more block rows)")
     a_d, c_d = state_matrices(decomp, n)
     modal = eigen_decomposition(a_d)
     b_d, d_d = estimate_bd_given_modes(a_d, c_d, data, d_zero=d_zero, weighted=decomp.weighted, modal=modal)
@@ -84,8 +85,9 @@ def model_at_order_fast(decomp, data, order, *, d_zero=False, weighted_bd=True):
         return model_at_order(decomp, data, order, d_zero=d_zero)
     n = int(order)
     if not 1 <= n <= decomp.max_order:
-        raise IdentError(f"order {n} is outside 1..{decomp.max_order} (max order of this "
-                         "decomposition)")
+        raise IdentError(f"order: {n} is outside 1..{decomp.max_order}, the largest order "
+                         "of this decomposition (fix: a lower order, or a larger max_order / "
+                         "--max-order or more block rows)")
     W = decomp.output_basis
     a_d, c_r = state_matrices_block(decomp, n)
     fit_data = data if W is None else compressed_outputs(decomp, data, d_zero)[0]

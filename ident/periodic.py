@@ -596,7 +596,9 @@ def prepare_frequency_data(record: Any = None, *, u: Any = None, y: Any = None,
     p = Y4.shape[3]
     P_tr = int(transient_periods or 0)
     if P_tr < 0 or P_tr >= P_tot:
-        raise IdentError(f"transient_periods={P_tr} leaves no period out of {P_tot}")
+        raise IdentError(f"transient_periods: {P_tr} leaves no period out of {P_tot} for "
+                         f"the identification (fix: give fewer transient periods, at most "
+                         f"{P_tot - 1}, in the config or the import, or record more periods)")
     if steady_periods not in ("auto", "all"):
         raise IdentError(f"steady_periods {steady_periods!r} is not one of ['auto', 'all']")
     P = P_tot - P_tr

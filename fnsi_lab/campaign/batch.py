@@ -509,6 +509,62 @@ def _run_on_cluster(client: Any, items: Sequence[PlannedInput], indices: Sequenc
         client.cancel(list(futures))
 
 
+#: Worker preload module: the worker processes leave SIGINT to the command.
+_WORKER_SETUP = "fnsi_lab.campaign.worker_setup"
+
+
+def _start_forkserver_ignoring_sigint() -> None:
+    """Have multiprocessing's fork server ignore SIGINT in the workers it forks.
+
+    The local cluster's workers are forked from it (``forkserver`` start method); it imports
+    :mod:`fnsi_lab.campaign._forkserver_sigint` before serving, so they ignore a Ctrl-C
+    sent to the terminal's process group from their first instruction: none dies half-way
+    through its start-up or a task with a traceback; the command alone handles it and
+    closes the cluster. A fork server this process started before (other code) keeps its
+    settings: its workers ignore SIGINT from their Dask preload
+    (:mod:`fnsi_lab.campaign.worker_setup`), once started.
+    """
+    import multiprocessing
+    from multiprocessing import forkserver
+
+    module = "fnsi_lab.campaign._forkserver_sigint"
+    # first, and without '__main__' (the workers need only fnsi_lab): the server ignores
+    # SIGINT before it imports anything else
+    others = [m for m in getattr(forkserver._forkserver, "_preload_modules", None) or []
+              if m not in ("__main__", module)]
+    multiprocessing.set_forkserver_preload([module, *others])
+    forkserver.ensure_running()
+
+
+@contextlib.contextmanager
+def _local_cluster(n_workers: int) -> Iterator[Any]:
+    """A LocalCluster of ``n_workers`` one-thread worker processes whose start-up no Ctrl-C
+    interrupts (:func:`_start_forkserver_ignoring_sigint`); closed on exit."""
+    from distributed import LocalCluster
+
+    _start_forkserver_ignoring_sigint()
+    try:
+        cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
+                               dashboard_address=None, silence_logs=logging.CRITICAL)
+    except KeyboardInterrupt:  # Ctrl-C while it starts: no half-started cluster to close
+        import atexit
+
+        from distributed.deploy import spec
+
+        _quiet_shutdown()
+        atexit.unregister(spec.close_clusters)  # it asserts on workers still starting;
+        raise                                   # they exit with this process (their pipe)
+    with cluster:
+        yield cluster
+
+
+def _quiet_shutdown() -> None:
+    """After Ctrl-C: the cluster closes with its workers mid-task; what Dask logs about the
+    closing connections (CommClosedError, CancelledError) is not news to the user."""
+    for name in ("distributed", "tornado", "asyncio"):
+        logging.getLogger(name).setLevel(logging.CRITICAL)
+
+
 @contextlib.contextmanager
 def dask_client(scheduler: str = "local", workers: int | None = None, *,
                 connect_timeout_s: float = 30.0) -> Iterator[Any]:
@@ -547,12 +603,18 @@ def dask_client(scheduler: str = "local", workers: int | None = None, *,
         # statistical profiler samples the task's thread every 10 ms, and
         # MALLOC_TRIM_THRESHOLD_ turns off glibc's adaptive mmap threshold, so every large
         # temporary array is mapped, zero-filled and unmapped again.
+        # Ctrl-C in a terminal reaches the worker processes too: they ignore it (a preload)
+        # and the cluster is closed quietly from here (no worker tracebacks, exit 130).
         with dask.config.set({"distributed.worker.profile.enabled": False,
-                              "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}), \
-                LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                             dashboard_address=None, silence_logs=logging.ERROR) as cluster, \
-                Client(cluster) as client:
-            yield client
+                              "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
+                              "distributed.worker.preload": [_WORKER_SETUP],
+                              "distributed.worker.multiprocessing-method": "forkserver"}), \
+                _local_cluster(n) as cluster, Client(cluster) as client:
+            try:
+                yield client
+            except KeyboardInterrupt:
+                _quiet_shutdown()
+                raise
         return
     try:
         client = Client(scheduler, timeout=f"{connect_timeout_s}s")
