@@ -61,7 +61,9 @@ def run(seeds: int, nested: bool) -> list[dict]:
             y = y0 + 0.01 * y0.std(axis=0) * np.random.default_rng(seed).standard_normal(y0.shape)
             arrays = {"u": u, "y": y, "fs": FS, "N": N, "channels": np.array(["X1", "X2", "X3"]),
                       "input_channels": np.array(["F"])}
-            res = fnsi_lab.identify(arrays, {**BASE, "nonlinearities": basis}, order=6)
+            res = fnsi_lab.identify(arrays, {**BASE, "nonlinearities": basis,
+                                             "compare_linear": True if nested else "auto"},
+                                    order=6)
             doc = res.to_json()
             nvl = doc.get("nonlinear_vs_linear") or {}
             for c, t in zip(doc["coefficients"], truths):

@@ -260,7 +260,9 @@ def _print_nested(res: dict, out=None) -> None:
     if not nvl:
         return
     print(f"nonlinear vs linear: {nvl['statement']}", file=out)
-    modes = nvl.get("linear_modes") or []
+    if nvl.get("linear_modes") is None:
+        return
+    modes = nvl["linear_modes"]
     print(f"  linear fit (order {nvl['order_linear']}): {len(modes)} modes "
           + ", ".join(f"{m['frequency_hz']:.4g} Hz ({100 * m['damping_ratio']:.2g} %)"
                       for m in modes), file=out)

@@ -91,7 +91,7 @@ class IdentConfig:
     basis_oversample: int = 8
     integration_min_snr: float | None = 4.0
     refine: str = "auto"
-    compare_linear: bool = True
+    compare_linear: bool | str = "auto"
     auto: AutoOptions = field(default_factory=AutoOptions)
     orders: tuple[int, ...] | None = None
     file: str | None = None
@@ -304,6 +304,14 @@ def _auto_section(sec: Section) -> dict:
     return out
 
 
+def _compare_linear(sec) -> bool | str:
+    """``compare_linear``: true, false or auto (the default)."""
+    value = sec.raw("compare_linear", "auto")
+    if value not in (True, False, "auto"):
+        raise sec.error("compare_linear", f"{value!r} is not allowed", fix="use true, false or auto")
+    return value
+
+
 def parse_ident_config(data: Any, *, file: str | None = None) -> IdentConfig:
     """Validate a parsed YAML mapping into :class:`IdentConfig`.
 
@@ -361,7 +369,7 @@ def parse_ident_config(data: Any, *, file: str | None = None) -> IdentConfig:
             basis_oversample=sec.integer("basis_oversample", 8, minimum=1),
             integration_min_snr=sec.number("integration_min_snr", 4.0, nonnegative=True),
             refine=sec.string("refine", "auto", choices=REFINEMENTS),
-            compare_linear=sec.boolean("compare_linear", True),
+            compare_linear=_compare_linear(sec),
             nonlinearities_auto=auto_nl, file=file, **_auto_section(sec))
         sec.finish()
         return cfg

@@ -916,12 +916,22 @@ def identify_request(inp: IdentInput, request: IdentRequest, *,
     t2 = time.perf_counter()
     ident.coefficient_spectra = _coefficient_spectra(session, ident.model)
     session.timings_s["coefficients"] = time.perf_counter() - t2
-    if session.config.nonlinearities and session.config.compare_linear:
-        t3 = time.perf_counter()
-        ident.nested = _compare_with_linear(session, ident, order=order, sweep=sweep,
-                                            reduce_at=reduce_at, max_order=max_order,
-                                            block_rows=block_rows)
-        session.timings_s["linear_fit"] = time.perf_counter() - t3
+    compare = session.config.compare_linear
+    if session.config.nonlinearities and compare:
+        verdicts = [c.get("verdict") for c in ident.coefficients]
+        if compare == "auto" and verdicts and all(v == "identified" for v in verdicts):
+            # every coefficient determined: the test would only confirm it (chain, SmallSat,
+            # Silverbox); it costs a second identification (docs/ident.md)
+            session.evidence["nonlinear_vs_linear"] = {
+                "decision": "nonlinear", "test": None,
+                "statement": "every coefficient is identified: the linear fit was not run "
+                             "(compare_linear: true runs it)"}
+        else:
+            t3 = time.perf_counter()
+            ident.nested = _compare_with_linear(session, ident, order=order, sweep=sweep,
+                                                reduce_at=reduce_at, max_order=max_order,
+                                                block_rows=block_rows)
+            session.timings_s["linear_fit"] = time.perf_counter() - t3
     session.timings_s["total"] = time.perf_counter() - t0
     return ident
 
@@ -942,7 +952,7 @@ def _compare_with_linear(session: IdentSession, ident: "Identification", *,
         linear = _fit(linear_session, order=order, sweep=sweep, reduce_at=reduce_at,
                       max_order=max_order,
                       block_rows=None if block_rows is None else block_rows)
-    except IdentError as exc:
+    except (IdentError, ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
         session.warnings.append(f"no linear fit to compare the nonlinear terms with ({exc})")
         return None
     halves = _split_periods(session)
@@ -993,7 +1003,7 @@ def _split_periods(session: IdentSession) -> tuple[FrequencyData, FrequencyData]
             warnings.simplefilter("ignore", IdentWarning)
             basis_data = prepare(used[0::2], cfg.nonlinearities)
             outputs = prepare(used[1::2], ())
-    except IdentError:
+    except (IdentError, ArithmeticError, ValueError, np.linalg.LinAlgError):
         return None
     common = np.intersect1d(np.intersect1d(basis_data.lines, outputs.lines), data.lines)
     if common.size == 0:

@@ -36,7 +36,7 @@ def arrays(variant, rms, seed):
 
 
 def test_supported_cubic_keeps_its_answer():
-    r = fnsi_lab.identify(arrays("cubic", 5.0, 0), CUBIC, order=6)
+    r = fnsi_lab.identify(arrays("cubic", 5.0, 0), {**CUBIC, "compare_linear": True}, order=6)
     nvl = r.to_json()["nonlinear_vs_linear"]
     assert nvl["decision"] == "nonlinear" and nvl["p_value"] < 1e-6
     assert nvl["residual_nonlinear"] < nvl["residual_linear"]
@@ -75,6 +75,13 @@ def test_robust_pipeline_compares_too():
     assert nvl["decision"] == "linear"
     assert r.nested.linear.method == "auto"
     assert len(r.modes) == 3   # the chain's three modes, from the linear fit
+
+
+def test_auto_skips_the_linear_fit_when_every_coefficient_is_identified():
+    r = fnsi_lab.identify(arrays("cubic", 5.0, 0), CUBIC, order=6)
+    nvl = r.to_json()["nonlinear_vs_linear"]
+    assert r.nested is None and nvl["decision"] == "nonlinear" and nvl["test"] is None
+    assert "identified" in nvl["statement"] and "linear_fit" not in r.session.timings_s
 
 
 def test_compare_linear_can_be_turned_off():
