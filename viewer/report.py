@@ -311,9 +311,12 @@ def figure_mdi(result: Mapping[str, Any]) -> Any:
     thr = result.get("threshold")
     if thr:
         ax.axhline(thr, color="#777777", lw=1.0, ls="--", label=f"threshold {thr:.3g}")
-    band = result.get("band_hz")
+    # the band whose poles are candidates (outside it: "out of band"), not the wider
+    # processed band, which would shade out-of-band poles as if they were in it
+    band = result.get("mdi_band_hz") or result.get("band_hz")
     if band:
-        ax.axvspan(band[0], band[1], color="#0072b2", alpha=0.06, label="processed band")
+        ax.axvspan(band[0], band[1], color="#0072b2", alpha=0.06,
+                   label=f"MDI band {band[0]:.3g}-{band[1]:.3g} Hz (candidates)")
     ax.set_xlabel("pole frequency (Hz)")
     ax.set_ylabel(f"MDI ({key.removeprefix('mdi_')} norm, relative)")
     ax.set_title(f"Modal dominancy index per pole (order {result.get('mdi_order', '-')})")
