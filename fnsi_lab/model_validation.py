@@ -37,7 +37,9 @@ class ValidationResult:
         Per output ``name``, ``unit``, ``output_rms``, ``error_rms``, ``error_db``,
         ``linear_error_rms``, ``linear_error_db`` (RMS over the compared lines, dB =
         ``20 log10(error / output)``: negative below the output; ``error_*`` None when the
-        nonlinear model could not be simulated).
+        nonlinear model could not be simulated), and ``linear_fit_error_rms``,
+        ``linear_fit_error_db`` when the result holds the linear fit of the same data
+        (``nonlinear_vs_linear.linear_state_space``).
     method : {'harmonic balance', 'time integration'}
     simulation : ident.validation.SimulatedOutputs
         The spectra (for figures).
@@ -164,11 +166,24 @@ def validate_model(result: Any, record: Any, *, method: str = "auto",
     model = model_from_json(res, res_name)
     basis = basis_from_json(res.get("nonlinearities"), res_name)
     notes: list[str] = []
+    nested = res.get("nonlinear_vs_linear") or {}
+    fit = (model_from_json({"state_space": nested["linear_state_space"]}, res_name)
+           if isinstance(nested.get("linear_state_space"), Mapping) else None)
+    if fit is not None and fit.time_base != model.time_base:
+        notes.append("the linear fit has another time base than the answer: not validated")
+        fit = None
     linear_answer = bool(basis) and model.b_d.shape[1] == model.n_inputs
-    if linear_answer:   # the answer fell back to a linear model: its basis is not used
+    if basis and nested.get("decision") == "linear" and fit is not None:
+        # the nested test found the nonlinear terms unsupported: the answer is the linear fit
+        notes.append(f"the nonlinear terms {[nl.name for nl in basis]} are not supported by "
+                     "the data (nonlinear_vs_linear): the answer is the linear fit, whose "
+                     "error both columns give")
+        model, linear_answer = fit, True
+    elif linear_answer:   # the answer fell back to a linear model: its basis is not used
         notes.append(f"the answer is a linear model (its nonlinear terms "
                      f"{[nl.name for nl in basis]} were not kept): the nonlinear model's "
                      "error is the linear model's")
+    if linear_answer:
         basis = ()
     if len(model.input_names) != model.n_inputs + sum(len(nl.coefficient_names) for nl in basis):
         raise IdentError(f"{res_name}: the model has {len(model.input_names)} extended inputs "
@@ -225,6 +240,7 @@ def validate_model(result: Any, record: Any, *, method: str = "auto",
                 integration_min_snr=proc.get("integration_min_snr", 4.0))
         notes += [str(w.message) for w in caught]
         sim = balance_outputs(model, basis, data, band)
+        fit_lines = None if fit is None else balance_outputs(fit, (), data, band).linear
         n_periods = data.n_periods
     else:
         if basis and quantity != "displacement":
@@ -235,11 +251,14 @@ def validate_model(result: Any, record: Any, *, method: str = "auto",
         y = np.asarray(inp.y).reshape(-1, inp.y.shape[-1])
         sim = time_outputs(model, basis, u, y, list(inp.output_channels), band,
                            oversample=oversample)
+        fit_lines = (None if fit is None else
+                     time_outputs(fit, (), u, y, list(inp.output_channels), band,
+                                  oversample=oversample).linear)
         n_periods = None
     if linear_answer:
         sim.nonlinear = sim.linear.copy()
         sim.info["linear_answer"] = True
-    errors = output_errors(sim, list(inp.output_channels))
+    errors = output_errors(sim, list(inp.output_channels), fit_lines)
     for row, unit in zip(errors, _units(None if isinstance(record, IdentInput) else rec_name,
                                         list(inp.output_channels), quantity)):
         row["unit"] = unit

@@ -52,14 +52,20 @@ def _print(v: Any, out=None) -> None:
     extra = (f", {info['n_periods']} periods averaged" if info.get("n_periods") else "")
     print(f"validation ({v.method}, {lo:g}-{hi:g} Hz{extra}; nonlinear terms: "
           f"{', '.join(info['nonlinearities']) or 'none'})", file=out)
-    print(f"{'output':14s} {'output RMS':>12s}  {'nonlinear error':>24s}  {'linear error':>24s}",
-          file=out)
+    has_fit = any("linear_fit_error_rms" in r for r in v.outputs)
+    print(f"{'output':14s} {'output RMS':>12s}  {'nonlinear error':>24s}  {'linear error':>24s}"
+          + (f"  {'linear fit error':>24s}" if has_fit else ""), file=out)
     for r in v.outputs:
         nl = ("-" if r["error_rms"] is None
               else f"{r['error_rms']:.4g} ({r['error_db']:+.1f} dB)")
         lin = f"{r['linear_error_rms']:.4g} ({r['linear_error_db']:+.1f} dB)"
-        print(f"{r['name']:14s} {r['output_rms']:>12.4g}  {nl:>24s}  {lin:>24s}   "
+        fit = (f"  {r['linear_fit_error_rms']:.4g} ({r['linear_fit_error_db']:+.1f} dB)"
+               .rjust(26) if "linear_fit_error_rms" in r else "")
+        print(f"{r['name']:14s} {r['output_rms']:>12.4g}  {nl:>24s}  {lin:>24s}{fit}   "
               f"[{r.get('unit', '')}]", file=out)
+    if has_fit:
+        print("(linear error: the answer's underlying linear model; linear fit: the linear "
+              "model identified on the same data, nonlinear_vs_linear)", file=out)
     for w in info.get("warnings", []):
         print(f"  warning: {w}", file=out)
 

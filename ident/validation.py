@@ -259,19 +259,27 @@ def _db(err: np.ndarray, ref: np.ndarray) -> np.ndarray:
         return 20.0 * np.log10(np.maximum(err, 1e-300) / np.where(ref > 0, ref, 1.0))
 
 
-def output_errors(sim: SimulatedOutputs, output_names: Sequence[str]) -> list[dict[str, Any]]:
+def output_errors(sim: SimulatedOutputs, output_names: Sequence[str],
+                  linear_fit: np.ndarray | None = None) -> list[dict[str, Any]]:
     """Per output: ``name``, ``output_rms``, ``error_rms``, ``error_db``,
     ``linear_error_rms``, ``linear_error_db`` (see the module doc; ``error_*`` None when
-    the nonlinear model has no simulation)."""
+    the nonlinear model has no simulation); with ``linear_fit`` (another linear model's
+    output on the same lines, shape (R, F, p)) also ``linear_fit_error_rms``,
+    ``linear_fit_error_db``."""
     y = _rms(sim.measured)
     lin = _rms(sim.measured - sim.linear)
     nl = None if sim.nonlinear is None else _rms(sim.measured - sim.nonlinear)
     lin_db = _db(lin, y)
     nl_db = None if nl is None else _db(nl, y)
+    fit = None if linear_fit is None else _rms(sim.measured - linear_fit)
     out = []
     for i, name in enumerate(output_names):
-        out.append({"name": str(name), "output_rms": float(y[i]),
-                    "error_rms": None if nl is None else float(nl[i]),
-                    "error_db": None if nl_db is None else float(nl_db[i]),
-                    "linear_error_rms": float(lin[i]), "linear_error_db": float(lin_db[i])})
+        row = {"name": str(name), "output_rms": float(y[i]),
+               "error_rms": None if nl is None else float(nl[i]),
+               "error_db": None if nl_db is None else float(nl_db[i]),
+               "linear_error_rms": float(lin[i]), "linear_error_db": float(lin_db[i])}
+        if fit is not None:
+            row.update(linear_fit_error_rms=float(fit[i]),
+                       linear_fit_error_db=float(_db(fit, y)[i]))
+        out.append(row)
     return out

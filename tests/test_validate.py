@@ -80,6 +80,9 @@ def test_nonlinear_model_beats_linear_by_25_db_on_another_level(duffing_files):
     assert row["linear_error_db"] - row["error_db"] >= 25.0, row
     assert row["error_db"] < -30.0           # the model is close to the truth (k3 to 0.02 %)
     assert row["error_db"] == pytest.approx(20 * np.log10(row["error_rms"] / row["output_rms"]))
+    # the linear model identified on the same data (nonlinear_vs_linear) does no better
+    # than the underlying linear one on a hardening oscillator at another level
+    assert row["linear_fit_error_db"] - row["error_db"] >= 25.0, row
     figure = (duffing_files / "val.svg").read_text()
     assert "<svg" in figure and figure.rstrip().endswith("</svg>")
     # an existing output is refused without --force
@@ -150,6 +153,23 @@ def test_linear_answer_with_a_basis(duffing_files, tmp_path):
     (row,) = val["outputs"]
     assert row["error_rms"] == row["linear_error_rms"]
     assert any("linear model" in w for w in val["warnings"])
+
+
+def test_unsupported_terms_validate_the_linear_fit(duffing_files, tmp_path):
+    """When the nested test decided the nonlinear terms are not supported
+    (nonlinear_vs_linear.decision 'linear'), the answer is the linear fit: both columns give
+    its error, and a note says so."""
+    res = json.loads((duffing_files / "low.json").read_text())
+    assert res["nonlinear_vs_linear"]["decision"] == "nonlinear"   # k3 is supported here
+    res["nonlinear_vs_linear"]["decision"] = "linear"               # as if it were not
+    (tmp_path / "unsupported.json").write_text(json.dumps(res))
+    proc = _cli(["validate", "unsupported.json", str(duffing_files / "high.npz"), "--json",
+                 "v.json"], tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    val = json.loads((tmp_path / "v.json").read_text())
+    (row,) = val["outputs"]
+    assert row["error_rms"] == row["linear_error_rms"] == row["linear_fit_error_rms"]
+    assert any("not supported" in w for w in val["warnings"])
 
 
 def test_bad_inputs_give_one_line(duffing_files, tmp_path):
