@@ -20,6 +20,7 @@ M, F0, ZETA, K3 = 1.0, 20.0, 0.02, 5.0e9
 DUFFING_CONFIG = """\
 band_hz: [5, 60]
 output_quantity: displacement
+compare_linear: true          # the linear fit of the same data in the result, validated too
 nonlinearities:
   - name: k3
     kind: polynomial
