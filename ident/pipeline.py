@@ -602,13 +602,14 @@ class Identification:
             return None
         from fnsi_lab.ident.spline import suggested_config
         raw = None
-        if self.config.file:
+        if self.config.file and not self.config.file.startswith("<"):
             from fnsi_lab.validate import load_yaml
             try:
                 raw, _ = load_yaml(self.config.file)
-            except Exception:   # the file moved since: the nonlinearities alone
+            except Exception:   # the file moved since: rebuilt from the parsed config
                 raw = None
-        return suggested_config(raw, self.config.nonlinearities, curves)
+        return suggested_config(raw or _config_mapping(self.config),
+                                self.config.nonlinearities, curves)
 
     def frf(self) -> dict:
         """Measured, model and underlying linear FRFs at the excited lines.
@@ -727,6 +728,24 @@ class Identification:
             "poles": [{"frequency_hz": f, "damping_ratio": z, "stable": bool(st)}
                       for f, z, st in zip(p["frequency_hz"], p["damping_ratio"], p["stable"])],
         }
+
+
+def _config_mapping(cfg: IdentConfig) -> dict:
+    """The main keys of a parsed config as YAML data (a config given as a mapping or whose
+    file is gone): band, quantities, channels, periods and orders; nonlinearities are
+    added by :func:`ident.spline.suggested_config`."""
+    out: dict[str, Any] = {"band_hz": [float(v) for v in cfg.band_hz]}
+    for key in ("samples_per_period", "transient_periods", "output_quantity", "order",
+                "max_order"):
+        value = getattr(cfg, key)
+        if value is not None:
+            out[key] = value
+    if cfg.outputs:
+        out["outputs"] = list(cfg.outputs)
+    if cfg.inputs:
+        out["inputs"] = [{"name": i.name, **({"driving_point": i.driving_point}
+                                             if i.driving_point else {})} for i in cfg.inputs]
+    return out
 
 
 def _nonlinearity_json(nl: Nonlinearity, search: Any = None, truth: Mapping | None = None,

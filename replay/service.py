@@ -775,6 +775,10 @@ def auto_view(update: ServiceUpdate) -> dict[str, Any]:
             {"label": e.unknown.label, "values": e.profile_values,
              "objective": e.profile_objective, "estimate": e.value, "std": e.std}
             for e in search.estimates]}
+    curves = ai.identification.spline_curves    # kind: spline: the force curves
+    if curves:
+        view["restoring_force"] = {"curves": [dict(c.to_dict(), suggestion=c.suggestion)
+                                              for c in curves]}
     # the physical modes of the answer: one per-update series each ("mode 3 (28.3 Hz)")
     physical = ai.identification.modes
     modes = {"frequency_hz": np.array([m["frequency_hz"] for m in physical]),

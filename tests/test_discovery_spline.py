@@ -151,3 +151,44 @@ def test_nonlinearities_auto_locates_then_characterises(smallsat, tmp_path):
     assert res["nonlinearities"][0]["channels"] == {"NC2W-Z": 1.0, "NC2B-Z": -1.0}
     assert res["localisation"]["candidates"][0]["verdict"] == "located"
     assert res["suggestions"][0]["kind"] == "trilinear"
+
+
+def test_restoring_force_is_drawn_in_rerun_and_the_report(tmp_path):
+    """The curve and its band go to /ident/restoring_force in a real Rerun recording (the
+    physical values attached to the force series), and the HTML report gets the section
+    with the figure and the suggested YAML."""
+    import rerun as rr
+    from rerun.chunk import RrdReader
+
+    from fnsi_lab.viewer import log as vlog
+    from fnsi_lab.viewer import paths
+    from fnsi_lab.viewer.report import render_report
+
+    x = np.linspace(-3.4, 3.4, 201)
+    f = 100 * np.where(x > 1.3, x - 1.3, 0) + 120 * np.where(x < -1.5, x + 1.5, 0)
+    curve = {"element": "NC2-Z", "argument": "displacement", "x": x, "force": f,
+             "std": np.full(x.size, 0.5), "knots": [-2.0, -1.0, 1.0, 2.0],
+             "suggestion": {"kind": "trilinear"}}
+    path = tmp_path / "rf.rrd"
+    rec = rr.RecordingStream("fnsi-lab-test", recording_id="rf")
+    rec.save(str(path))
+    vlog.log_identification(rec, {"restoring_force": {"curves": [curve]}}, update=1)
+    rec.flush()
+    rec.disconnect()
+    entities = {}
+    for chunk in RrdReader(str(path)).stream().collect().stream():
+        entities.setdefault(chunk.entity_path, []).append(chunk.to_record_batch())
+    force = [e for e in entities if e.startswith(paths.RESTORING_FORCE) and e.endswith("force")]
+    assert force, sorted(entities)
+    values = [b.column("force").to_pylist()[-1] for b in entities[force[0]]
+              if "force" in b.schema.names]
+    assert values and values[-1] == pytest.approx(f)
+    result = {"coefficients": [{"name": "NC2-Z:x0", "value": 1.0,
+                                "curve": {k: v for k, v in curve.items() if k != "suggestion"}}],
+              "suggestions": [{"element": "NC2-Z", "argument": "displacement",
+                               "kind": "trilinear", "clearances": [1.5, 1.3],
+                               "values": [120.0, 100.0], "misfit": 0.0}],
+              "suggested_config": {"yaml": "nonlinearities:\n- {name: NC2-Z, kind: trilinear}\n"}}
+    page = render_report(result)
+    assert "Restoring force (kind: spline)" in page and "fig-restoring-force" in page
+    assert "kind: trilinear" in page

@@ -81,6 +81,7 @@ TABLE_CASES: dict[str, list[list[str]]] = {
     "export": [["export", "result.json", "--uff", "result.uff", "--csv", "tables"]],
     "validate": [["validate", "result.json", "acquired.mcap", "--json", "validation.json"]],
     "analyse": [["analyse", "smallsat.mcap"]],
+    "locate": [["locate", "smallsat.mcap", "--config", "smallsat39", "--json", "where.json"]],
 }
 
 

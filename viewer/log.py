@@ -569,6 +569,43 @@ def log_parameter_objective(rec: rr.RecordingStream, profiles: Sequence[Mapping[
         Figure(rec, paths.PARAMETERS).log(stack(panels, len(panels)))
 
 
+def log_restoring_force(rec: rr.RecordingStream, curves: Sequence[Mapping[str, Any]], *,
+                        update: int | None = None) -> None:
+    """Restoring-force curves of ``kind: spline`` elements with their confidence bands.
+
+    Parameters
+    ----------
+    curves : sequence of mapping
+        One per curve (``coefficients[].curve`` of the result JSON): ``element``,
+        ``argument`` ({'displacement', 'velocity'}), ``x``, ``force``, ``std`` (shape (n,))
+        and optionally ``suggestion`` (its ``kind``).
+    update : int, optional
+        Identification update (shown in the titles).
+    """
+    panels = []
+    for k, c in enumerate(curves):
+        x = np.asarray(c["x"], dtype=float).ravel()
+        f = np.asarray(c["force"], dtype=float).ravel()
+        sd = np.nan_to_num(np.asarray(c["std"], dtype=float).ravel())
+        lo, hi = f - 2 * sd, f + 2 * sd
+        sug = (c.get("suggestion") or {}).get("kind")
+        title = f"{c['element']}: force against relative {c['argument']}" + (
+            f" (suggests {sug})" if sug and sug != "none" else "")
+        panel = Panel(f"c{k}", _title(title, update),
+                      Axis.fit(f"relative {c['argument']}", x, pad=0.0),
+                      Axis.fit("force", lo, hi))
+        for name, y, color, width in (("band_low", lo, _lighter(_BLUE), 1.0),
+                                      ("band_high", hi, _lighter(_BLUE), 1.0),
+                                      ("force", f, _BLUE, 1.8)):
+            label = {"force": "force", "band_low": "-2 std", "band_high": "+2 std"}[name]
+            panel.series.append(Series(name, label, x, y, color, width=width,
+                                       values={"x": x, "force": f, "std": sd}
+                                       if name == "force" else {}))
+        panels.append(panel)
+    if panels:
+        Figure(rec, paths.RESTORING_FORCE).log(stack(panels, len(panels)))
+
+
 def log_identification(rec: rr.RecordingStream, view: Mapping[str, Any], *,
                        update: int | None = None) -> None:
     """Log every subtree present in a plain-dict identification result.
@@ -580,7 +617,8 @@ def log_identification(rec: rr.RecordingStream, view: Mapping[str, Any], *,
         ``frf`` (:func:`log_frf`, with ``frequency_hz``), ``stabilisation``,
         ``criterion`` (:func:`log_information_criterion`), ``mdi``, ``coefficients``,
         ``convergence`` (with ``update``, ``acq_time_s``, ``values``), ``parameters``
-        (:func:`log_parameter_objective`), and ``summary`` (markdown text). The stabilisation diagram marks the criterion's selected order.
+        (:func:`log_parameter_objective`), ``restoring_force`` (:func:`log_restoring_force`),
+        and ``summary`` (markdown text). The stabilisation diagram marks the criterion's selected order.
     update : int, optional
         Identification update, shown in the figure titles (each update replaces the
         figures; the per-update estimates stay on the ``update`` timeline).
@@ -600,6 +638,8 @@ def log_identification(rec: rr.RecordingStream, view: Mapping[str, Any], *,
         log_coefficients(rec, **view["coefficients"], update=update)
     if "parameters" in view:
         log_parameter_objective(rec, **view["parameters"], update=update)
+    if "restoring_force" in view:
+        log_restoring_force(rec, **view["restoring_force"], update=update)
     if "convergence" in view:
         log_convergence(rec, **view["convergence"])
     if "summary" in view:

@@ -53,6 +53,9 @@ COEFFICIENTS = "/ident/coefficients"
 #: Basis parameters estimated from the data (clearances, exponents): the FNSI model error
 #: against each parameter, the estimate marked; one panel per parameter.
 PARAMETERS = "/ident/parameters"
+#: ``kind: spline`` elements: the restoring-force curve against the relative displacement (or
+#: velocity) with its confidence band, one panel per curve (docs/discovery.md).
+RESTORING_FORCE = "/ident/restoring_force"
 #: Estimates against the update number (pole frequencies, dampings, coefficient means).
 CONVERGENCE = "/ident/convergence"
 #: Markdown table of the latest result (the paper's Table 2).

@@ -395,6 +395,80 @@ def figure_coefficients(result: Mapping[str, Any]) -> Any | None:
     return fig
 
 
+def spline_curves(result: Mapping[str, Any]) -> list[dict]:
+    """The ``kind: spline`` force curves of a result (``coefficients[].curve``)."""
+    return [c["curve"] for c in result.get("coefficients") or [] if c.get("curve")]
+
+
+def figure_restoring_force(result: Mapping[str, Any]) -> Any | None:
+    """Each spline element's force curve with its band (+-2 standard errors) and the
+    suggested parametric form's curve; None without spline elements."""
+    curves = spline_curves(result)
+    if not curves:
+        return None
+    fig, axes = _figure(9.0, 3.2 * len(curves) + 0.6, rows=len(curves))
+    sugg = {(s.get("element"), s.get("argument")): s for s in result.get("suggestions") or []}
+    for k, (ax, c) in enumerate(zip(axes, curves)):
+        x, f = np.asarray(c["x"], float), np.asarray(c["force"], float)
+        sd = np.nan_to_num(np.asarray(c["std"], float))
+        color = COEFF_COLOURS[k % len(COEFF_COLOURS)]
+        ax.fill_between(x, f - 2 * sd, f + 2 * sd, color=color, alpha=0.25,
+                        label="+-2 standard errors")
+        ax.plot(x, f, color=color, lw=1.6, label="spline (identified)")
+        for t in c.get("knots") or []:
+            ax.axvline(t, color="#999999", lw=0.5, alpha=0.5)
+        s = sugg.get((c["element"], c["argument"]))
+        model = _suggested_curve(s, x) if s else None
+        if model is not None:
+            ax.plot(x, model, color="#282828", lw=1.0, ls="--", label=f"suggested {s['kind']}")
+        ax.set_xlabel(f"relative {c['argument']} of {c['element']}")
+        ax.set_ylabel("force beyond the linear spring")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, loc="upper left")
+    axes[0].set_title("Restoring force without an assumed shape (grey lines: knots)")
+    return fig
+
+
+def _suggested_curve(s: Mapping[str, Any], x: np.ndarray) -> np.ndarray | None:
+    """The suggested parametric form's force on ``x`` (read-off parameters)."""
+    kind, v = s.get("kind"), s.get("values") or []
+    if kind == "trilinear":
+        gn, gp = s["clearances"]
+        return v[0] * np.where(x < -gn, x + gn, 0) + v[1] * np.where(x > gp, x - gp, 0)
+    if kind == "bilinear":
+        g = s["clearance"]
+        return v[0] * (np.where(x > g, x - g, 0) if s.get("side") == "pos"
+                       else np.where(x < -g, x + g, 0))
+    if kind == "polynomial":
+        return v[0] * np.abs(x) ** s["exponent"] * np.sign(x)
+    if kind == "coulomb":
+        return v[0] * np.tanh(x / max(float(s.get("velocity_scale") or 1e-30), 1e-30))
+    return None
+
+
+def restoring_force_html(result: Mapping[str, Any]) -> list[str]:
+    """The report's section on spline elements (empty without them)."""
+    if not spline_curves(result):
+        return []
+    rows = []
+    for s in result.get("suggestions") or []:
+        pars = ", ".join(f"{k} {_g(s[k]) if not isinstance(s[k], list) else [_g(v) for v in s[k]]}"
+                         for k in ("clearances", "clearance", "side", "exponent",
+                                   "velocity_scale") if k in s)
+        rows.append({"element": s.get("element"), "argument": s.get("argument"),
+                     "suggested form": s.get("kind"), "parameters": pars or s.get("reason", ""),
+                     "coefficients": ", ".join(_g(v) for v in s.get("values") or []),
+                     "misfit": _g(s["misfit"], 3) if "misfit" in s else ""})
+    text = (result.get("suggested_config") or {}).get("yaml") or ""
+    return ["<h2>Restoring force (kind: spline)</h2>",
+            _figure_html(figure_restoring_force(result),
+                         "the identified force curve, its band and the parametric form it "
+                         "suggests (docs/discovery.md)", "fig-restoring-force"),
+            _table(rows),
+            "<p>Suggested config (<code>fnsi-lab ident ... --suggest OUT.yaml</code> writes "
+            "it):</p>", f"<pre id='suggested-config'>{html.escape(text)}</pre>"]
+
+
 def figure_frf(result: Mapping[str, Any], output: str | None = None) -> Any | None:
     """Measured, model and underlying-linear FRF (dB, phase) of one output over the force."""
     frf = result.get("frf")
@@ -587,6 +661,7 @@ def render_report(result: Mapping[str, Any], metadata: Mapping[str, Any] | None 
               _figure_html(figure_coefficients(result),
                            "coefficient spectra c_a(f): a physical coefficient is constant "
                            "and real over the excited lines", "fig-coefficients"),
+              *restoring_force_html(result),
               "<h2>Frequency response</h2>",
               _figure_html(figure_frf(result, output),
                            "measured FRF, model FRF (nonlinear terms included) and the "
@@ -599,4 +674,4 @@ def render_report(result: Mapping[str, Any], metadata: Mapping[str, Any] | None 
 __all__ = ["render_report", "failure_reason", "stabilisation_rows", "summary_rows", "mode_rows",
            "coefficient_statistics", "metadata_rows", "driving_point", "exact_values",
            "figure_stabilisation", "figure_criterion", "figure_mdi", "figure_coefficients",
-           "figure_frf", "svg"]
+           "figure_frf", "figure_restoring_force", "svg"]
