@@ -311,7 +311,10 @@ def log_information_criterion(rec: rr.RecordingStream, orders: Any, criterion: A
     orders = np.asarray(orders, dtype=np.int64).ravel()
     crit = np.asarray(criterion, dtype=float).ravel()
     ok = np.isfinite(crit) & (crit > 0)
-    panel = Panel("", _title("information criterion I(n)", update),
+    gaps = int(np.sum(~ok))
+    what = (f"I(n); red: {gaps} orders not fitted (unstable)" if gaps
+            else "information criterion I(n)")
+    panel = Panel("", _title(what, update),
                   Axis.fit("model order", orders, pad=0.03),
                   Axis.fit("criterion I(n)", crit[ok], log=True))
     values = {"order": orders, "criterion": crit}
@@ -322,7 +325,7 @@ def log_information_criterion(rec: rr.RecordingStream, orders: Any, criterion: A
     # orders without a value (unstable models: infinite criterion) leave gaps: say why, with
     # a marker at the bottom of the axis for each
     gap = orders[~ok]
-    panel.series.append(Series("not_fitted", f"order not fitted: unstable ({gap.size})",
+    panel.series.append(Series("not_fitted", f"unstable ({gap.size})",
                                gap.astype(float), np.full(gap.size, panel.y.lo * 1.15),
                                _RED, kind="points", width=2.5, legend=bool(gap.size),
                                values={"order": gap}))
