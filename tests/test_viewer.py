@@ -337,3 +337,31 @@ def test_view_without_a_display_serves_the_web_viewer_and_prints_its_url(rec_pat
             out, err = proc.communicate()
     assert proc.returncode == 0, err
     assert "no display: serving the web viewer" in err
+
+
+def test_a_signal_group_of_many_channels_has_no_legend_over_its_curves(tmp_path):
+    """39 displacement channels: no legend column over the data (issue 27); a group of a
+    few keeps its legend; the view names its unit."""
+    bp = blueprint(("force", "displacement"), group_sizes={"force": 1, "displacement": 39},
+                   group_units={"force": "N", "displacement": "mm"})
+    bp.save("fnsi-lab-test", str(tmp_path / "b.rbl"))
+    reader = RrdReader(str(tmp_path / "b.rbl"))
+    names, legend = {}, {}
+    for chunk in reader.stream(store=reader.blueprints()[0]).collect().stream():
+        batch = chunk.to_record_batch()
+        path = str(chunk.entity_path)
+        if "ViewBlueprint:display_name" in batch.schema.names:
+            names[path] = batch.column("ViewBlueprint:display_name").to_pylist()[-1][0]
+        if "PlotLegend:visible" in batch.schema.names:
+            legend[path.rsplit("/", 1)[0]] = batch.column("PlotLegend:visible").to_pylist()[-1][0]
+    by_name = {name: legend.get(path) for path, name in names.items()}
+    assert by_name["signals: displacement (mm)"] is False
+    assert by_name["signals: force (N)"] is True
+
+
+def test_channels_are_coloured_by_direction_family():
+    colours = vlog.direction_colours(["X", "Y", "Z", "-x", "Z", ""])
+    assert colours[0] in vlog.DIRECTION_PALETTES["X"] and colours[3] in vlog.DIRECTION_PALETTES["X"]
+    assert colours[1] in vlog.DIRECTION_PALETTES["Y"]
+    assert colours[2] != colours[4] and colours[4] in vlog.DIRECTION_PALETTES["Z"]
+    assert colours[5] in vlog.SIGNAL_PALETTE  # no direction: the plain palette
