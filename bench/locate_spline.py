@@ -72,7 +72,8 @@ def bench_spline(folder: Path, knots_list) -> list[str]:
     from fnsi_lab.ident.config import packaged_config
 
     ss = folder / "smallsat.mcap"
-    known = {c["name"]: c["value"] for c in fnsi_lab.identify(ss, "smallsat39").coefficients}
+    known = {c["name"]: c["value"]
+             for c in fnsi_lab.identify(ss, "smallsat39", order=22).coefficients}
     rows = ["| knots | clearances read (mm) | error % | stiffnesses read (N/mm) | error % | "
             "suggested config vs known form % | spline time (s) | suggested run (s) |",
             "|---|---|---|---|---|---|---|---|"]
@@ -81,7 +82,7 @@ def bench_spline(folder: Path, knots_list) -> list[str]:
         cfg = dict(base)
         cfg["nonlinearities"] = [dict(base["nonlinearities"][0], knots=knots)]
         t = time.perf_counter()
-        res = fnsi_lab.identify(ss, cfg)
+        res = fnsi_lab.identify(ss, cfg, order=cfg["order"])    # the config's order, 22
         t_spline = time.perf_counter() - t
         s = res.spline_curves[0].suggestion
         gaps, stiff = np.asarray(s["clearances"]), np.asarray(s["values"])
@@ -89,7 +90,7 @@ def bench_spline(folder: Path, knots_list) -> list[str]:
         kerr = 100 * (stiff / SMALLSAT_STIFF - 1)
         mapping, _ = res.suggested_config()
         t = time.perf_counter()
-        sug = fnsi_lab.identify(ss, mapping)
+        sug = fnsi_lab.identify(ss, mapping, order=mapping["order"])
         t_sug = time.perf_counter() - t
         got = {c["name"]: c["value"] for c in sug.coefficients}
         serr = [100 * (got[n] / known[n] - 1) for n in ("NC2-Z:neg", "NC2-Z:pos")]
@@ -98,6 +99,30 @@ def bench_spline(folder: Path, knots_list) -> list[str]:
                     f"{kerr[1]:+.2f} | {serr[0]:+.4f} / {serr[1]:+.4f} | {t_spline:.1f} | "
                     f"{t_sug:.1f} |")
     return rows
+
+
+def bench_chain(folder: Path) -> list[str]:
+    """The whole discovery on the SmallSat: analyse, locate, spline, parametric (seconds)."""
+    ss = folder / "smallsat.mcap"
+    times = {}
+    t = time.perf_counter()
+    fnsi_lab.analyse(ss, config="smallsat39")
+    times["analyse"] = time.perf_counter() - t
+    t = time.perf_counter()
+    where = fnsi_lab.locate(ss, "smallsat39")
+    times["locate"] = time.perf_counter() - t
+    t = time.perf_counter()
+    shape = fnsi_lab.identify(ss, "smallsat39-spline", order=22)
+    times["spline"] = time.perf_counter() - t
+    mapping, _ = shape.suggested_config()
+    t = time.perf_counter()
+    fnsi_lab.identify(ss, mapping, order=22)
+    times["parametric"] = time.perf_counter() - t
+    total = sum(times.values())
+    return ["| analyse | locate | spline (12 knots) | parametric (searched gaps) | total | located |",
+            "|---|---|---|---|---|---|",
+            "| " + " | ".join(f"{v:.1f}" for v in times.values()) + f" | {total:.1f} | "
+            f"{where.located.name if where.located else '-'} |"]
 
 
 def main() -> None:
@@ -113,6 +138,8 @@ def main() -> None:
     print("\n".join(bench_locate(folder, levels)))
     print()
     print("\n".join(bench_spline(folder, (12,) if args.quick else (12, 24))))
+    print()
+    print("\n".join(bench_chain(folder)))
 
 
 if __name__ == "__main__":

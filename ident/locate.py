@@ -748,13 +748,14 @@ def locate_input(inp, cfg, *, candidates: Any = "all", order: int | None = None,
     t1 = time.perf_counter()
     if progress is not None:
         progress(f"linear model, order {n}")
-    dec = subspace_decomposition(shown, max_order=n, weighted=session.weighted)
+    rows = _block_rows(data, n)
+    dec = subspace_decomposition(shown, max_order=n, weighted=session.weighted, block_rows=rows)
     lin_shown = model_at_order(dec, shown, n, d_zero=True)
     screened = rank_locations(shown, lin_shown, cands, weighted=session.weighted)
     t2 = time.perf_counter()
-    if refine > 0:
-        dec0 = subspace_decomposition(data, max_order=n, weighted=session.weighted,
-                                      block_rows=_block_rows(data, n))
+    if refine > 0:   # displacement outputs: the screen's decomposition serves (one QR less)
+        dec0 = dec if shown is data else subspace_decomposition(
+            data, max_order=n, weighted=session.weighted, block_rows=rows)
         lin = model_at_order(dec0, data, n)
         rss0 = _weighted_rss(data, lin.steady_state_output(data), session.weighted)
         screened = refine_locations(data, screened, order=n, weighted=session.weighted,
