@@ -94,3 +94,18 @@ def test_match_modes_never_confuses_close_modes():
     assert match_modes(ref, [10.25]) == [None]  # halfway between two modes: ambiguous
     assert match_modes(ref, [10.01, 10.02]) == [0, None]  # one frequency per mode
     assert match_modes([], [1.0]) == [None]
+
+
+def test_the_comparison_carries_the_runs_units_to_its_plots():
+    """Axes in the recording's units (issue 27): force level in N, stiffness in N/mm."""
+    from fnsi_lab.campaign.view import coefficient_panels, frf_panels
+
+    runs = [_run("a", 10.0, 100.0, 1.0, 0.2, [10.0]), _run("b", 50.0, 101.0, 1.0, 0.2, [10.0])]
+    for _, result in runs:
+        result["units"] = {"force": "N", "frf": "mm/N", "coefficients": {"stop:neg": "N/mm"}}
+    c = _campaign(runs)
+    assert c.units["coefficients"] == {"stop:neg": "N/mm"} and c.to_json()["units"] == c.units
+    (panel,) = coefficient_panels(c)
+    assert panel.x.label == "force level (RMS, N)" and panel.y.label == "stop:neg (N/mm)"
+    assert all("dB re 1 mm/N" in p.title for p in frf_panels(c))
+    assert _campaign([_run("c", 1.0, 99.0, 1.0, 0.2, [10.0])]).units == {}  # older results

@@ -104,6 +104,9 @@ class Comparison:
     inputs: list[str]
     warnings: list[str] = field(default_factory=list)
     failed: list[tuple[str, str]] = field(default_factory=list)
+    #: The runs' ``units`` block (force, frf, coefficients {name: unit}; ident.units);
+    #: empty for results written before units were recorded.
+    units: dict = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
         """JSON-able form (complex FRFs as ``re``/``im``)."""
@@ -124,6 +127,7 @@ class Comparison:
                              for r in self.frfs]},
             "warnings": self.warnings,
             "failed": [{"file": f, "error": e} for f, e in self.failed],
+            "units": self.units,
         }
 
 
@@ -319,9 +323,12 @@ def compare_campaign(rows: Sequence[Mapping[str, Any]], *, output: str | None = 
                           field="--output", fix="give one of those outputs, or omit --output "
                                                 "for the driving point")
     _frf_deviations(frfs)
+    units = next((dict(loaded[r["result"]]["units"]) for r in done
+                  if isinstance(loaded[r["result"]].get("units"), dict)), {})
     return Comparison(levels=levels, coefficients=coefficients, frequencies=frequencies,
                       damping=damping, reference_frequencies_hz=reference_hz, frfs=frfs,
-                      output=chosen, inputs=inputs, warnings=warnings, failed=failed)
+                      output=chosen, inputs=inputs, warnings=warnings, failed=failed,
+                      units=units)
 
 
 def _frf_deviations(frfs: Sequence[RunFRF]) -> None:

@@ -45,7 +45,9 @@ def _level_axis(c: Comparison) -> Axis:
     known = [lv for lv in c.levels if lv is not None]
     # a sweep over a decade or more reads better on a log axis
     log = len(known) > 1 and min(known) > 0 and max(known) / min(known) >= 10
-    return Axis.fit("force level (RMS)", known, log=log, pad=0.08)
+    force = c.units.get("force")
+    return Axis.fit(f"force level (RMS, {force})" if force else "force level (RMS)", known,
+                    log=log, pad=0.08)
 
 
 def _known(values: Sequence[LevelValue]) -> list[LevelValue]:
@@ -67,7 +69,8 @@ def coefficient_panels(c: Comparison) -> list[Panel]:
         run_y = np.concatenate([v.runs for v in vals])
         bad = np.array([v.not_identifiable is not None for v in vals])
         ok = ~bad
-        y = Axis.fit(name, mean[ok] if ok.any() else mean,
+        unit = (c.units.get("coefficients") or {}).get(name)
+        y = Axis.fit(f"{name} ({unit})" if unit else name, mean[ok] if ok.any() else mean,
                      (mean + spread)[ok] if ok.any() else None,
                      (mean - spread)[ok] if ok.any() else None, run_y[np.isin(run_x, lv[ok])])
         series = [Series("mean", "mean over runs", lv, mean, _BLUE, width=1.5),
@@ -78,7 +81,7 @@ def coefficient_panels(c: Comparison) -> list[Panel]:
         if bad.any():
             series.append(Series("not_identifiable", "not identifiable", lv[bad], mean[bad],
                                  _RED, kind="points", width=6.0))
-        panels.append(Panel(_key(name), name, x, y, series))
+        panels.append(Panel(_key(name), y.label, x, y, series))
     return stack(panels, rows=max(len(panels), 1), panel_h=PANEL_H)
 
 
@@ -134,9 +137,10 @@ def frf_panels(c: Comparison) -> list[Panel]:
             mags.append(mag)
             freqs.append(r.frequency_hz)
         name = c.inputs[k] if k < len(c.inputs) else f"input {k}"
-        panels.append(Panel(_key(name), f"|H| {c.output} / {name} (dB), underlying linear",
+        db = f"dB re 1 {c.units['frf']}" if c.units.get("frf") else "dB"
+        panels.append(Panel(_key(name), f"|H| {c.output} / {name} ({db}), underlying linear",
                             Axis.fit("frequency (Hz)", *freqs, pad=0.0),
-                            Axis.fit("dB", *mags), series))
+                            Axis.fit(db, *mags), series))
     return stack(panels, rows=max(len(panels), 1), panel_h=PANEL_H)
 
 
