@@ -941,8 +941,12 @@ def identify_request(inp: IdentInput, request: IdentRequest, *,
         if compare == "auto" and verdicts and all(v == "identified" for v in verdicts):
             # every coefficient determined: the test would only confirm it (chain, SmallSat,
             # Silverbox); it costs a second identification (docs/ident.md)
+            from fnsi_lab.ident.nested import weighted_residual
+
             session.evidence["nonlinear_vs_linear"] = {
                 "decision": "nonlinear", "test": None,
+                "residual_nonlinear": weighted_residual(ident.model, session.data),
+                "residual_linear": None, "statistic": None, "p_value": None,
                 "statement": "every coefficient is identified: the linear fit was not run "
                              "(compare_linear: true runs it)"}
         else:
