@@ -173,7 +173,7 @@ def main_bench(argv=None) -> int:
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
         from fnsi_lab.daq.recording.reader import read_periodic
-        from fnsi_lab.replay.service import config_identifier
+        from fnsi_lab.replay.identifiers import config_identifier
         from fnsi_lab.replay.source import ReplaySource
 
         path = tmp / "bench.mcap"

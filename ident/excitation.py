@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["ExcitationGrid", "detect_excited_lines", "MAINS_HZ"]
+__all__ = ["ExcitationGrid", "detect_excited_lines", "best_grid", "MAINS_HZ"]
 
 #: Mains frequencies whose harmonics are never taken for excitation on their own.
 MAINS_HZ: tuple[float, ...] = (50.0, 60.0)
@@ -91,7 +91,7 @@ class ExcitationGrid:
                 "rejected_mains_hz": [round(float(k) * df, 6) for k in self.mains]}
 
 
-def _best_grid(cand: np.ndarray, grid_fraction: float, max_step: int) -> tuple[int, int]:
+def best_grid(cand: np.ndarray, grid_fraction: float, max_step: int) -> tuple[int, int]:
     """Coarsest (step, offset) holding ``grid_fraction`` of the candidate bins."""
     best = (1, 0)
     for step in range(2, max_step + 1):
@@ -155,7 +155,7 @@ def detect_excited_lines(drive_power: np.ndarray, sample_rate_hz: float,
     cand = k_all[valid & (pw > threshold * level)]
     if cand.size == 0:
         return ExcitationGrid(lines=np.zeros(0, int))
-    step, offset = _best_grid(cand, grid_fraction, max_step)
+    step, offset = best_grid(cand, grid_fraction, max_step)
     on = cand % step == offset
     off_grid, cand = cand[~on], cand[on]
     # runs of grid lines (a gap of at most 2 grid steps continues a run: random-odd designs

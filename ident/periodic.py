@@ -18,7 +18,7 @@ import numpy as np
 
 from fnsi_lab.ident.basis import Nonlinearity, coefficient_names, evaluate_basis
 from fnsi_lab.ident.errors import IdentError, IdentWarning
-from fnsi_lab.ident.excitation import ExcitationGrid, _best_grid, detect_excited_lines
+from fnsi_lab.ident.excitation import ExcitationGrid, best_grid, detect_excited_lines
 from fnsi_lab.ident.steady import select_steady_periods
 from fnsi_lab.ident.noise import (mains_contaminated_lines, mains_outlier_lines,
                                   noise_from_nonexcited, noise_lines,
@@ -647,7 +647,7 @@ def prepare_frequency_data(record: Any = None, *, u: Any = None, y: Any = None,
     # excited lines: given (recording metadata, user file) or detected from the drive
     if excited_lines is not None and len(excited_lines):
         given = np.unique(np.asarray(excited_lines, int))
-        step, offset = _best_grid(given, 0.9, 8) if given.size else (1, 0)
+        step, offset = best_grid(given, 0.9, 8) if given.size else (1, 0)
         grid = ExcitationGrid(lines=given, step=step, offset=offset,
                               n_candidates=int(given.size), source="given")
     else:

@@ -1,7 +1,7 @@
 """One identification request, resolved once: the settings every caller passes whole.
 
 The API (:func:`fnsi_lab.identify`), ``fnsi-lab ident``, the live service and replay
-(:func:`fnsi_lab.replay.service.config_identifier`), the report and batch campaigns all build
+(:func:`fnsi_lab.replay.identifiers.config_identifier`), the report and batch campaigns all build
 an :class:`IdentRequest` with :func:`resolve_request` and hand it to
 :func:`ident.pipeline.identify_request`, so one recording gives one answer whichever door it
 came through: the same default order sweep (:data:`DEFAULT_ORDERS`), the same default

@@ -35,7 +35,7 @@ def make_identifier(args: argparse.Namespace, metadata: dict[str, Any],
     points, orders) drives the robust pipeline; without it, the excited band is processed
     and a simulated recording's own nonlinear elements (its ``truth``) are the basis.
     """
-    from fnsi_lab.replay.service import config_identifier, frf_identifier
+    from fnsi_lab.replay.identifiers import config_identifier, frf_identifier
 
     if getattr(args, "method", "auto") == "frf":
         return frf_identifier, "nonparametric FRF (fast)"
@@ -171,7 +171,8 @@ class LiveRun:
 
     # called in the identifier thread
     def on_update(self, update: Any) -> None:
-        from fnsi_lab.replay.service import AutoIdentification, FrfResult, auto_view
+        from fnsi_lab.replay.identifiers import AutoIdentification, FrfResult
+        from fnsi_lab.viewer.views import auto_view
 
         if isinstance(update.result, AutoIdentification):
             view = auto_view(update)
@@ -231,8 +232,8 @@ class LiveRun:
 
 
 def frf_view(update: Any) -> dict[str, Any]:
-    """View dict of a nonparametric :class:`replay.service.FrfResult` update."""
-    from fnsi_lab.replay.service import driving_point
+    """View dict of a nonparametric :class:`replay.identifiers.FrfResult` update."""
+    from fnsi_lab.replay.identifiers import driving_point
     from fnsi_lab.viewer.log import summary_markdown
 
     res = update.result
@@ -244,8 +245,8 @@ def frf_view(update: Any) -> dict[str, Any]:
 
 def format_table(update: Any) -> str:
     """Plain-text result table (the paper's Table 2 layout) of the last update."""
-    from fnsi_lab.replay.service import (AutoIdentification, left_out_hz, mode_table,
-                                         summary_rows)
+    from fnsi_lab.replay.identifiers import AutoIdentification
+    from fnsi_lab.viewer.views import left_out_hz, mode_table, summary_rows
 
     if update is None:
         return "no identification (the reason follows)"
@@ -461,7 +462,7 @@ def _report_path(args: argparse.Namespace, output: Path, *,
 def _write_html_report(path: Path, service: Any, recording: Path, *, force: bool) -> None:
     """The HTML report of the last identification update (``viewer.report``)."""
     from fnsi_lab.daq.recording.reader import open_recording
-    from fnsi_lab.replay.service import AutoIdentification
+    from fnsi_lab.replay.identifiers import AutoIdentification
     from fnsi_lab.viewer.report_cli import write_report
 
     last = service.updates[-1] if service.updates else None

@@ -16,6 +16,10 @@ Estimates improve as periods accumulate because every snapshot holds all complet
 same :class:`daq.recording.reader.PeriodicRecord` that :func:`daq.recording.reader.read_periodic`
 builds from the finished file, so the last update of a complete run is bit-identical to
 an offline identification of its recording.
+
+Rooms: this module runs the threads; the assembly itself is pure (:mod:`replay.assembly`),
+what runs on each snapshot is in :mod:`replay.identifiers`, and the views of an update for
+Rerun and the terminal are formatted by :mod:`viewer.views`.
 """
 
 from __future__ import annotations
@@ -28,10 +32,16 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Iterable, Mapping, Sequence
 
 import numpy as np
-
 from fnsi_lab.daq.acquisition import put_drop_oldest
 from fnsi_lab.daq.block import Block
 from fnsi_lab.daq.channels import ChannelInfo
+from fnsi_lab.replay.assembly import (
+    CompletePeriod,
+    PeriodAssembler,
+    build_record,
+    periodicity_error,
+)
+
 from fnsi_lab.errors import ConfigError
 
 _END = object()
@@ -41,140 +51,6 @@ _END = object()
 DEFAULT_STEADY_TOLERANCE = 0.05
 
 
-# ---------------------------------------------------------------------------- assembly
-@dataclass(frozen=True)
-class CompletePeriod:
-    """One complete period of every channel.
-
-    Attributes
-    ----------
-    realization : int
-    index : int
-        Period number within its realization (``first_sample // N``).
-    data : ndarray, shape (N, n_channels)
-    end_ns : int
-        Source time just after its last sample.
-    received_s : float
-        ``time.monotonic()`` when its last block reached the service (for latency).
-    """
-
-    realization: int
-    index: int
-    data: np.ndarray
-    end_ns: int
-    received_s: float
-
-
-class PeriodAssembler:
-    """Cut a stream of blocks into complete periods of ``samples_per_period`` samples.
-
-    Periods start at ``first_sample`` multiples of N (the excitation's phase), as in
-    :func:`daq.recording.reader.read_periodic`. A gap (lost blocks) discards the partial
-    period it falls in and is counted in :attr:`lost_samples`.
-
-    Parameters
-    ----------
-    samples_per_period : int
-        N.
-    n_channels : int
-        Columns of every block.
-    """
-
-    def __init__(self, samples_per_period: int, n_channels: int) -> None:
-        if samples_per_period < 1:
-            raise ConfigError(f"samples_per_period must be >= 1, got {samples_per_period}",
-                              field="samples_per_period")
-        self.n = int(samples_per_period)
-        self.n_channels = int(n_channels)
-        self._buf: dict[int, np.ndarray] = {}
-        self._fill: dict[int, int] = {}          # samples filled in the current period
-        self._period: dict[int, int] = {}        # index of the period being filled
-        self._next: dict[int, int] = {}          # next expected first_sample
-        self.lost_samples = 0
-        self.gaps = 0
-
-    def add(self, block: Block, received_s: float | None = None) -> list[CompletePeriod]:
-        """Place one block; return the periods it completed (usually zero or one)."""
-        r = int(block.realization)
-        received_s = time.monotonic() if received_s is None else received_s
-        data = np.asarray(block.data)
-        start = int(block.first_sample)
-        expected = self._next.get(r)
-        if expected is not None and start != expected:
-            self.gaps += 1
-            if start > expected:
-                self.lost_samples += start - expected
-            self._fill.pop(r, None)  # the partial period cannot be completed
-        self._next[r] = start + data.shape[0]
-        out: list[CompletePeriod] = []
-        pos = 0
-        while pos < data.shape[0]:
-            s = start + pos
-            k, offset = divmod(s, self.n)
-            if self._period.get(r) != k or r not in self._fill:
-                if offset != 0:  # mid-period start (first block or after a gap): skip ahead
-                    pos += self.n - offset
-                    continue
-                self._period[r] = k
-                self._fill[r] = 0
-                if r not in self._buf:
-                    self._buf[r] = np.empty((self.n, self.n_channels), dtype=np.float64)
-            take = min(self.n - offset, data.shape[0] - pos)
-            self._buf[r][offset:offset + take] = data[pos:pos + take]
-            self._fill[r] += take
-            pos += take
-            if self._fill[r] == self.n:
-                end_ns = block.t0_ns + int(round(pos * 1e9 / block.sample_rate_hz))
-                out.append(CompletePeriod(r, k, self._buf[r].copy(), end_ns, received_s))
-                del self._fill[r]
-        return out
-
-
-def periodicity_error(previous: np.ndarray, current: np.ndarray) -> float:
-    """Largest per-channel ``||x_k - x_{k-1}|| / ||x_k||`` of two consecutive periods."""
-    diff = np.linalg.norm(current - previous, axis=0)
-    ref = np.linalg.norm(current, axis=0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        err = np.where(ref > 0, diff / np.where(ref > 0, ref, 1.0), np.where(diff > 0, np.inf, 0.0))
-    return float(np.max(err)) if err.size else 0.0
-
-
-# ---------------------------------------------------------------------------- snapshot
-def build_record(periods: Mapping[int, Sequence[CompletePeriod]], channels: Sequence[ChannelInfo],
-                 sample_rate_hz: float, samples_per_period: int, *, transient_periods: int,
-                 excited_lines: Any = (), truth: Any = None, excitation: Any = None) -> Any:
-    """A :class:`daq.recording.reader.PeriodicRecord` of consecutive complete periods.
-
-    Each realization contributes its longest run of consecutive periods starting at its
-    first kept one; all realizations are cut to the shortest, as ``read_periodic`` does.
-    """
-    from fnsi_lab.daq.recording.reader import PeriodicRecord, _periodicity
-
-    reals = sorted(r for r, ps in periods.items() if ps)
-    runs = {}
-    for r in reals:
-        ps = periods[r]
-        run = [ps[0]]
-        for p in ps[1:]:
-            if p.index != run[-1].index + 1:
-                break
-            run.append(p)
-        runs[r] = run
-    n_p = min(len(v) for v in runs.values())
-    x = np.stack([np.stack([p.data for p in runs[r][:n_p]]) for r in reals])
-    is_in = np.array([c.is_force for c in channels], dtype=bool)
-    errs = np.max(np.stack([_periodicity(x[i]) for i in range(len(reals))]), axis=0)
-    err = float(np.max(errs)) if errs.size and not np.all(np.isnan(errs)) else math.nan
-    first_index = min(runs[r][0].index for r in reals)
-    return PeriodicRecord(
-        u=x[..., is_in], y=x[..., ~is_in],
-        input_channels=tuple(c for c in channels if c.is_force),
-        output_channels=tuple(c for c in channels if not c.is_force),
-        sample_rate_hz=float(sample_rate_hz), samples_per_period=int(samples_per_period),
-        transient_periods=max(int(transient_periods) - first_index, 0),
-        excited_lines=np.asarray(excited_lines, dtype=np.int64), truth=truth,
-        periodicity_error=err, periodicity_error_per_channel=errs, realizations=tuple(reals),
-        notes=(), excitation=excitation)
 
 
 # ---------------------------------------------------------------------------- service
@@ -292,7 +168,7 @@ class IdentService:
         N of the multisine.
     identify : callable
         ``identify(record) -> result`` on a :class:`~daq.recording.reader.PeriodicRecord`
-        (e.g. ``ident.auto``'s pipeline via :func:`replay.service.auto_identifier`).
+        (e.g. ``ident.auto``'s pipeline via :func:`replay.identifiers.auto_identifier`).
     on_update : callable, optional
         ``on_update(ServiceUpdate)``, called in the identifier thread (log to Rerun here).
     transient_periods : int
@@ -372,7 +248,7 @@ class IdentService:
         Without a recorded number of transient periods, steady state is detected
         (``steady_state_tolerance`` defaults to :data:`DEFAULT_STEADY_TOLERANCE`).
         """
-        from fnsi_lab.daq.recording.reader import _excited_lines
+        from fnsi_lab.daq.periodic import excited_lines_of
 
         exc = metadata.get("excitation") or {}
         n = kwargs.pop("samples_per_period", None) or exc.get("samples_per_period")
@@ -385,7 +261,7 @@ class IdentService:
             kwargs.setdefault("steady_state_tolerance", DEFAULT_STEADY_TOLERANCE)
         kwargs.setdefault("transient_periods", int(exc.get("transient_periods", 0) or 0))
         return cls(channels, sample_rate_hz, int(n), identify,
-                   excited_lines=_excited_lines(exc or None, int(n), sample_rate_hz),
+                   excited_lines=excited_lines_of(exc or None, int(n), sample_rate_hz),
                    truth=metadata.get("truth"), excitation=exc or None, **kwargs)
 
     # ------------------------------------------------------------------ feeding
@@ -607,345 +483,3 @@ class IdentService:
         if last is not None and self._since_update:
             self._post(last)
         return self.status
-
-
-# ---------------------------------------------------------------------------- identifiers
-@dataclass(frozen=True)
-class FrfResult:
-    """Nonparametric estimate: FRFs at the excited lines from the averaged periods.
-
-    Attributes
-    ----------
-    frequencies_hz : ndarray, shape (n_lines,)
-    frf : complex ndarray, shape (n_lines, n_out, n_in)
-        ``Y / U`` of the period-averaged spectra (single input) or least squares over
-        realizations (several inputs).
-    noise_std : ndarray, shape (n_lines, n_out)
-        Standard deviation of the averaged output spectrum (NaN with one period).
-    n_periods : int
-        Steady-state periods averaged per realization.
-    output_names, input_names : tuple of str
-    """
-
-    frequencies_hz: np.ndarray
-    frf: np.ndarray
-    noise_std: np.ndarray
-    n_periods: int
-    output_names: tuple[str, ...]
-    input_names: tuple[str, ...]
-
-
-def frf_identifier(record: Any) -> FrfResult:
-    """A fast nonparametric identification of a periodic record (baseline and tests).
-
-    Parameters
-    ----------
-    record : PeriodicRecord
-        ``u`` (R, P, N, m), ``y`` (R, P, N, p); the first ``transient_periods`` are dropped.
-
-    Returns
-    -------
-    FrfResult
-    """
-    t = int(record.transient_periods)
-    u = np.asarray(record.u)[:, t:]
-    y = np.asarray(record.y)[:, t:]
-    n = record.samples_per_period
-    lines = np.asarray(record.excited_lines, dtype=np.int64)
-    if lines.size == 0:
-        lines = np.arange(1, (n - 1) // 2 + 1)
-    U = np.fft.rfft(u, axis=2)[:, :, lines] / n          # (R, P, F, m)
-    Y = np.fft.rfft(y, axis=2)[:, :, lines] / n          # (R, P, F, p)
-    Um, Ym = U.mean(axis=1), Y.mean(axis=1)              # (R, F, m), (R, F, p)
-    p_count = U.shape[1]
-    if p_count > 1:
-        noise = np.sqrt(np.mean(np.var(Y, axis=1, ddof=1), axis=0) / p_count)
-    else:
-        noise = np.full(Ym.shape[1:], np.nan)
-    # (F, p, m) = Y^T U^+ over realizations (R >= m); for R = m = 1 a plain division.
-    Yf = np.transpose(Ym, (1, 2, 0))                     # (F, p, R)
-    Uf = np.transpose(Um, (1, 2, 0))                     # (F, m, R)
-    frf = Yf @ np.linalg.pinv(Uf)
-    return FrfResult(frequencies_hz=lines * record.sample_rate_hz / n, frf=frf,
-                     noise_std=noise, n_periods=p_count,
-                     output_names=tuple(c.name for c in record.output_channels),
-                     input_names=tuple(c.name for c in record.input_channels))
-
-
-def driving_point(output_channels: Sequence[ChannelInfo], input_channels: Sequence[ChannelInfo],
-                  input_index: int = 0) -> int:
-    """Index of the output measured where (node, direction) the force ``input_index`` acts.
-
-    Falls back to a name match (``F-NC2W-Z`` -> ``NC2W-Z``), then to output 0.
-    """
-    force = input_channels[input_index]
-    for i, c in enumerate(output_channels):
-        if force.node and c.node == force.node and c.direction == force.direction:
-            return i
-    for i, c in enumerate(output_channels):
-        if force.name.endswith(c.name):
-            return i
-    return 0
-
-
-# ---------------------------------------------------------------------------- robust pipeline
-@dataclass(frozen=True)
-class AutoIdentification:
-    """What :func:`config_identifier` returns for one snapshot.
-
-    Attributes
-    ----------
-    identification : fnsi_lab.ident.pipeline.Identification
-        The answer of the one entry point (:func:`fnsi_lab.ident.pipeline.identify_input`).
-    coefficient_curves : dict
-        ``{'full': {name: c(f)}, 'reduced': {name: c(f)}, 'frequency_hz': f}`` when the
-        configuration has basis functions, else empty.
-    exact_coefficients : dict
-        Known coefficient values (simulations), name -> value.
-    """
-
-    identification: Any
-    coefficient_curves: dict
-    exact_coefficients: dict
-
-    @property
-    def result(self) -> Any:
-        """The robust pipeline's :class:`~fnsi_lab.ident.auto_result.AutoResult`."""
-        return self.identification.auto
-
-    @property
-    def data(self) -> Any:
-        """The :class:`~fnsi_lab.ident.periodic.FrequencyData` identified."""
-        return self.identification.data
-
-
-def auto_view(update: ServiceUpdate) -> dict[str, Any]:
-    """Plain-dict view of an :class:`AutoIdentification` update for :func:`viewer.log.log_identification`."""
-    from fnsi_lab.viewer.log import summary_markdown
-
-    ai: AutoIdentification = update.result
-    res, data = ai.result, ai.data
-    record = update.record
-    dp = driving_point(record.output_channels, record.input_channels)
-    exc = np.asarray(data.excited, dtype=bool)
-    f = data.frequencies_hz[exc]
-    u = data.E_physical[exc, 0]
-    view: dict[str, Any] = {}
-    with np.errstate(divide="ignore", invalid="ignore"):
-        measured = data.Y[exc, dp] / u
-        y_model = res.model.steady_state_output(data)[exc, dp] / u
-    units = ai.identification.units
-    view["frf"] = {"frequency_hz": f, "measured": measured,
-                   "linear": res.model.underlying_linear_frf(f)[:, dp, 0], "model": y_model,
-                   "output": getattr(record.output_channels[dp], "name",
-                                     str(record.output_channels[dp])),
-                   "force": getattr(record.input_channels[0], "name",
-                                    str(record.input_channels[0])),
-                   "unit": units.get("frf")}
-    order, freq, cls = [], [], []
-    for o in res.stabilisation.orders:
-        for fi, c, unst in zip(o.frequency_hz, o.classes, o.unstable):
-            order.append(o.order)
-            freq.append(fi)
-            cls.append("unstable" if unst else str(c))
-    view["stabilisation"] = {"order": order, "frequency_hz": freq, "pole_class": cls}
-    ic = res.information_criterion
-    view["criterion"] = {"orders": ic.orders, "criterion": ic.value,
-                         "selected_order": res.selected_order}
-    from fnsi_lab.ident.pole_fate import pole_fates
-
-    thr = res.threshold.threshold
-    rows = res.mdi_table()  # sorted by frequency, with the decisions
-    key = f"mdi_{res.modal_dominancy.norm}"
-    view["mdi"] = {"frequency_hz": np.array([r["frequency_hz"] for r in rows]),
-                   "mdi": np.array([r.get(key, r["mdi_h2"]) for r in rows]),
-                   "kept": np.array([r["physical"] for r in rows], bool),
-                   "fate": pole_fates(rows, res.confidence, left_out_hz(ai)),
-                   "threshold": float(thr) if np.isfinite(thr) else None}
-    if ai.coefficient_curves:
-        view["coefficients"] = {"frequency_hz": ai.coefficient_curves["frequency_hz"],
-                                "full": ai.coefficient_curves.get("full"),
-                                "reduced": ai.coefficient_curves.get("reduced"),
-                                "exact": ai.exact_coefficients,
-                                "excited": data.excited,
-                                "units": units.get("coefficients")}
-    search = ai.identification.session.parameter_search   # clearances/exponents from the data
-    if search is not None and search.estimates:
-        view["parameters"] = {"profiles": [
-            {"label": e.unknown.label, "values": e.profile_values,
-             "objective": e.profile_objective, "estimate": e.value, "std": e.std}
-            for e in search.estimates]}
-    curves = ai.identification.spline_curves    # kind: spline: the force curves
-    if curves:
-        view["restoring_force"] = {"curves": [dict(c.to_dict(), suggestion=c.suggestion)
-                                              for c in curves]}
-    # the physical modes of the answer: one per-update series each ("mode 3 (28.3 Hz)")
-    physical = ai.identification.modes
-    modes = {"frequency_hz": np.array([m["frequency_hz"] for m in physical]),
-             "damping_ratio": np.array([m["damping_ratio"] for m in physical])}
-    with np.errstate(divide="ignore", invalid="ignore"):
-        log_sep = np.log10(res.separation_ratio) if res.separation_ratio > 0 else np.nan
-    view["convergence"] = {"update": update.update, "acq_time_s": update.acq_time_s,
-                           "values": {"natural_frequency_hz": modes["frequency_hz"],
-                                      "damping_ratio": modes["damping_ratio"],
-                                      "selected_order": [res.selected_order],
-                                      "log10_separation_ratio": [log_sep]},
-                           "coefficients": coefficient_means(ai),
-                           "units": units.get("coefficients")}
-    view["summary"] = summary_markdown(
-        f"Identification update {update.update} ({update.n_periods} steady periods)",
-        summary_rows(update), mode_table(res, left_out_hz(ai)))
-    return view
-
-
-def coefficient_means(ai: AutoIdentification) -> dict[str, float]:
-    """Mean Re c_a over the excited lines, of the reduced model when there is one."""
-    curves = ai.coefficient_curves.get("reduced") or ai.coefficient_curves.get("full") or {}
-    band = np.asarray(ai.data.excited, dtype=bool)
-    out = {}
-    for name, curve in curves.items():
-        c = np.asarray(curve)
-        c = c[band] if c.size == band.size else c
-        if c.size:
-            out[name] = float(np.mean(c.real))
-    return out
-
-
-def summary_rows(update: ServiceUpdate) -> list[tuple[str, str]]:
-    """Key/value rows of the result summary (the paper's Table 2 headline values)."""
-    ai: AutoIdentification = update.result
-    res = ai.result
-    rows = [("periods averaged", str(update.n_periods)),
-            ("selected order (IC)", str(res.selected_order)),
-            ("MDI order", str(res.mdi_order)),
-            ("physical modes", str(int(np.sum(res.physical)))),
-            ("reduced order", str(res.reduced.order) if res.reduced is not None else "-"),
-            ("separation ratio", f"{res.separation_ratio:.3g}"),
-            ("confidence", str(res.confidence.get("level", ""))),
-            ("identification time", f"{update.ident_s:.2f} s")]
-    units = ai.identification.units["coefficients"]
-    for which in ("full", "reduced"):
-        for name, curve in (ai.coefficient_curves.get(which) or {}).items():
-            band = np.asarray(ai.data.excited, dtype=bool)
-            c = np.asarray(curve)[band] if np.size(curve) == band.size else np.asarray(curve)
-            mean, std = float(np.mean(c.real)), float(np.std(c.real))
-            unit = units.get(name, "")
-            text = f"{mean:.5g} ± {std:.3g}" + (f" {unit}" if unit else "")
-            exact = ai.exact_coefficients.get(name)
-            if exact:
-                text += f" (error {100 * (mean - exact) / exact:+.3f} %)"
-            rows.append((f"{name}, {which} model", text))
-    return rows
-
-
-def left_out_hz(ai: AutoIdentification) -> list[float]:
-    """Frequencies of the split modes the output-error refinement left out (Hz)."""
-    evidence = getattr(ai.identification.session, "evidence", {}) or {}
-    return [float(m["frequency_hz"]) for m in
-            ((evidence.get("output_error") or {}).get("left_out") or [])]
-
-
-def mode_table(res: Any, left_out_hz: Sequence[float] = ()) -> list[dict[str, Any]]:
-    """One row per mode of the MDI order: frequency, damping, MDI, stabilisation and its fate
-    (:mod:`ident.pole_fate`: physical, spurious by MDI, not detectable...)."""
-    from fnsi_lab.ident.pole_fate import fate_label, pole_fates
-
-    out = []
-    rows = res.mdi_table()
-    for row, fate in zip(rows, pole_fates(rows, res.confidence, left_out_hz)):
-        if not row["in_band"]:
-            continue
-        out.append({"f (Hz)": round(row["frequency_hz"], 3),
-                    "zeta (%)": round(100 * row["damping_ratio"], 3),
-                    "MDI": float(f"{row[f'mdi_{res.options.mdi_norm}']:.3g}")
-                    if f"mdi_{res.options.mdi_norm}" in row else None,
-                    "stabilisation": row["stabilisation"],
-                    "fate": fate_label(fate)})
-    return out
-
-
-# ---------------------------------------------------------------------------- ident config
-def config_identifier(config: Any = None, *, truth: Mapping[str, Any] | None = None,
-                      orders: Sequence[int] | str | None = None,
-                      channels: Sequence[ChannelInfo] = (), harmonics: float = 1.0,
-                      use_truth: bool = True) -> tuple[Identifier, str]:
-    """``identify(record)`` running the one identification entry point on each snapshot.
-
-    Every snapshot goes through :func:`fnsi_lab.ident.pipeline.identify_input` with the
-    same configuration as ``fnsi-lab ident --auto`` would use (its ``auto:`` section
-    included), so live, replayed and offline results agree.
-
-    Parameters
-    ----------
-    config : IdentConfig or None
-        Band, basis functions, driving points, options. None: the excited band and, for
-        simulated recordings, the basis of ``truth``
-        (:func:`fnsi_lab.ident.pipeline.default_config`).
-    truth : mapping, optional
-        Recording truth (nonlinear elements, exact coefficients).
-    orders : str or sequence of int, optional
-        Order sweep; default the config's ``auto.orders``, else
-        :data:`fnsi_lab.ident.request.DEFAULT_ORDERS` (2..60, as ``fnsi-lab ident --auto``).
-    channels : sequence of ChannelInfo
-        The recording's channels (driving point when the config names none).
-    harmonics : float
-        Without a config and with basis functions: process the lines up to ``harmonics``
-        times the highest excited frequency (see ``default_config``). 1: the excited band.
-    use_truth : bool
-        False: no basis from the truth (a linear identification without a config).
-
-    Returns
-    -------
-    (callable, str)
-        The identifier and a one-line description.
-    """
-    from dataclasses import replace
-
-    from fnsi_lab.ident.options import parse_orders
-    from fnsi_lab.ident.pipeline import identify_request
-    from fnsi_lab.ident.request import DEFAULT_ORDERS, resolve_request
-    from fnsi_lab.inputs import input_from_record
-
-    # for the description only: each snapshot's request is resolved as `ident` resolves it
-    sweep = (parse_orders(orders) if orders is not None
-             else list(config.orders) if config is not None and config.orders
-             else list(DEFAULT_ORDERS))
-    outputs = [c for c in channels if not c.is_force]
-    inputs = [c for c in channels if c.is_force]
-    dp_name = outputs[driving_point(outputs, inputs)].name if outputs and inputs else None
-
-    def identify(record: Any) -> AutoIdentification:
-        import warnings
-
-        inp = input_from_record(record, path="<live>")
-        if not use_truth:
-            inp = replace(inp, truth=None)
-        elif inp.truth is None and truth is not None:
-            inp = replace(inp, truth=dict(truth))
-        request = resolve_request(inp, config, orders=orders, harmonics=harmonics,
-                                  driving_point=dp_name)
-        with warnings.catch_warnings():  # steady-state warnings go to the status, not stderr
-            warnings.simplefilter("ignore")
-            ident = identify_request(inp, request)
-        curves: dict = {}
-        if ident.config.nonlinearities:
-            res = ident.auto
-            curves["frequency_hz"] = ident.data.frequencies_hz
-            for which, model in (("full", res.full_model), ("reduced", res.reduced)):
-                if model is not None:
-                    sp = ident.coefficient_spectra_of(model)
-                    curves[which] = {n: sp.values[:, i] for i, n in enumerate(sp.names)}
-        exact = {n: float(v) for nl in ident.config.nonlinearities if nl.truth is not None
-                 for n, v in zip(nl.coefficient_names, nl.truth) if v is not None}
-        return AutoIdentification(identification=ident, coefficient_curves=curves,
-                                  exact_coefficients=exact)
-
-    what = (f"robust pipeline, orders {sweep[0]}-{sweep[-1]}"
-            + (f", config {config.file}" if config is not None and config.file else
-               ", excited band" + (", basis from the recording truth" if use_truth else "")))
-    return identify, what
-
-
-def auto_identifier(*, orders: Sequence[int] | str | None = None) -> Identifier:
-    """A linear ``identify(record)`` over the excited band (no config, no basis functions)."""
-    return config_identifier(None, orders=orders, use_truth=False)[0]

@@ -823,7 +823,9 @@ def test_live_service_shows_the_objective_in_rerun(tmp_path):
     rr = pytest.importorskip("rerun")
     from rerun.chunk import RrdReader
 
-    from fnsi_lab.replay.service import IdentService, auto_view, config_identifier
+    from fnsi_lab.replay.service import IdentService
+    from fnsi_lab.viewer.views import auto_view
+    from fnsi_lab.replay.identifiers import config_identifier
     from fnsi_lab.replay.source import ReplaySource
     from fnsi_lab.viewer import paths
     from fnsi_lab.viewer.log import log_identification

@@ -14,8 +14,10 @@ from fnsi_lab.daq.multisine import multisine
 from fnsi_lab.daq.recording import Recorder
 from fnsi_lab.daq.recording.reader import read_periodic
 from fnsi_lab.daq.sources.array_source import ArraySource
-from fnsi_lab.replay.service import (IdentService, PeriodAssembler, auto_identifier, auto_view,
-                            frf_identifier)
+from fnsi_lab.replay.service import IdentService
+from fnsi_lab.replay.assembly import PeriodAssembler
+from fnsi_lab.replay.identifiers import auto_identifier, frf_identifier
+from fnsi_lab.viewer.views import auto_view
 from fnsi_lab.replay.source import ReplaySource
 
 FS, N = 500.0, 512
@@ -139,7 +141,7 @@ def test_replay_and_ident_give_one_answer_on_one_recording(tmp_path):
 
     from fnsi_lab.cli import main
     from fnsi_lab.ident.request import DEFAULT_ORDERS
-    from fnsi_lab.replay.service import config_identifier
+    from fnsi_lab.replay.identifiers import config_identifier
 
     data, meta = two_dof(4, noise=0.01)
     path = record(tmp_path / "r.mcap", data, meta)

@@ -93,7 +93,7 @@ def _identify_recording(path: Path, config: str | None, orders: str | None,
     from fnsi_lab.daq.recording.reader import open_recording
     from fnsi_lab.ident.pipeline import default_config
     from fnsi_lab.inputs import load_input
-    from fnsi_lab.replay.service import driving_point
+    from fnsi_lab.replay.identifiers import driving_point
 
     with open_recording(path) as rec:
         outs, ins = rec.output_channels, rec.input_channels

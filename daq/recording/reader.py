@@ -29,6 +29,7 @@ from mcap.summary import Summary
 
 from fnsi_lab.daq.block import Block
 from fnsi_lab.daq.channels import ChannelInfo
+from fnsi_lab.daq.periodic import excited_lines_of, periodicity_per_channel
 from fnsi_lab.daq.recording import schema, topics
 from fnsi_lab.daq.recording.errors import (DamagedRecordingError, MissingChannelsError,
                                            NotMcapError, RecordingError,
@@ -725,18 +726,6 @@ class PeriodicRecord:
         return self.excited_lines * self.sample_rate_hz / self.samples_per_period
 
 
-def _periodicity(x: np.ndarray) -> np.ndarray:
-    """Per-channel relative difference of the last two periods, x shape (P, N, n_ch)."""
-    if x.shape[0] < 2:
-        return np.full(x.shape[-1], np.nan)
-    last = x[-1]
-    diff = np.linalg.norm(last - x[-2], axis=0)
-    ref = np.linalg.norm(last, axis=0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        err = np.where(ref > 0, diff / np.where(ref > 0, ref, 1), np.where(diff > 0, np.inf, 0.0))
-    return err
-
-
 def read_periodic(path_or_recording: str | os.PathLike[str] | Recording,
                   samples_per_period: int | None = None, *,
                   max_periodicity_error: float | None = None) -> PeriodicRecord:
@@ -833,7 +822,7 @@ def _read_periodic(rec: Recording, samples_per_period: int | None,
     x = np.empty((len(reals), p, n, n_ch), dtype=np.float64)
     for i, r in enumerate(reals):
         x[i] = series[r][: p * n].reshape(p, n, n_ch)
-    errs = np.max(np.stack([_periodicity(x[i]) for i in range(len(reals))]), axis=0)
+    errs = np.max(np.stack([periodicity_per_channel(x[i]) for i in range(len(reals))]), axis=0)
     err = float(np.max(errs)) if errs.size and not np.all(np.isnan(errs)) else math.nan
     if max_error is not None and not err <= max_error:
         raise RecordingError(f"{rec.path}: data are not periodic with N={n} (relative "
@@ -841,7 +830,7 @@ def _read_periodic(rec: Recording, samples_per_period: int | None,
                              "check samples_per_period or record more transient periods")
     notes += [note for note in rec.notes if note not in notes]  # e.g. no CRCs to check
     is_in = np.array([c.is_force for c in rec.channels], dtype=bool)
-    lines = _excited_lines(exc, n, rec.sample_rate_hz)
+    lines = excited_lines_of(exc, n, rec.sample_rate_hz)
     return PeriodicRecord(
         u=x[..., is_in], y=x[..., ~is_in], input_channels=rec.input_channels,
         output_channels=rec.output_channels, sample_rate_hz=rec.sample_rate_hz,
@@ -849,14 +838,3 @@ def _read_periodic(rec: Recording, samples_per_period: int | None,
         excited_lines=lines, truth=rec.truth, periodicity_error=err,
         periodicity_error_per_channel=errs, realizations=reals, notes=tuple(notes),
         excitation=exc)
-
-
-def _excited_lines(exc: dict[str, Any] | None, n: int, fs: float) -> np.ndarray:
-    if not exc:
-        return np.zeros(0, dtype=np.int64)
-    if exc.get("excited_lines") is not None:
-        return np.asarray(exc["excited_lines"], dtype=np.int64)
-    if exc.get("band_hz") is not None:
-        from fnsi_lab.daq.multisine import excited_lines
-        return excited_lines(n, float(exc.get("sample_rate_hz", fs)), tuple(exc["band_hz"]))
-    return np.zeros(0, dtype=np.int64)
