@@ -123,7 +123,7 @@ def _units(path: str | None, names: list[str], quantity: str) -> list[str]:
 def validate_model(result: Any, record: Any, *, method: str = "auto",
                    samples_per_period: int | None = None,
                    transient_periods: int | None = None,
-                   oversample: int = 8) -> ValidationResult:
+                   oversample: int = 8, simulate: str = "answer") -> ValidationResult:
     """Simulate an identified model on a record and measure its output error.
 
     Parameters
@@ -142,6 +142,10 @@ def validate_model(result: Any, record: Any, *, method: str = "auto",
         result's).
     oversample : int
         Internal steps per sample of the time integration.
+    simulate : {'answer', 'nonlinear'}
+        ``answer`` (default): the result's answer, i.e. the linear fit when the nested test
+        found the nonlinear terms not supported (``nonlinear_vs_linear.decision`` linear);
+        ``nonlinear``: the nonlinear model with its basis whatever that decision.
 
     Returns
     -------
@@ -172,17 +176,24 @@ def validate_model(result: Any, record: Any, *, method: str = "auto",
     if fit is not None and fit.time_base != model.time_base:
         notes.append("the linear fit has another time base than the answer: not validated")
         fit = None
-    linear_answer = bool(basis) and model.b_d.shape[1] == model.n_inputs
-    if basis and nested.get("decision") == "linear" and fit is not None:
+    if simulate not in ("answer", "nonlinear"):
+        raise IdentError(f"simulate {simulate!r}: use answer or nonlinear")
+    names = [nl.name for nl in basis]
+    decided_linear = bool(basis) and nested.get("decision") == "linear"
+    linear_answer = False
+    if basis and model.b_d.shape[1] == model.n_inputs:   # no basis columns: a linear answer
+        notes.append(f"the answer is a linear model (its nonlinear terms {names} were not "
+                     "kept): the nonlinear model's error is the linear model's")
+        linear_answer = True
+    elif decided_linear and fit is not None and simulate == "answer":
         # the nested test found the nonlinear terms unsupported: the answer is the linear fit
-        notes.append(f"the nonlinear terms {[nl.name for nl in basis]} are not supported by "
-                     "the data (nonlinear_vs_linear): the answer is the linear fit, whose "
-                     "error both columns give")
+        notes.append(f"the nonlinear terms {names} are not supported by the data "
+                     "(nonlinear_vs_linear): the answer is the linear fit, whose error every "
+                     "column gives (--model nonlinear simulates the nonlinear model anyway)")
         model, linear_answer = fit, True
-    elif linear_answer:   # the answer fell back to a linear model: its basis is not used
-        notes.append(f"the answer is a linear model (its nonlinear terms "
-                     f"{[nl.name for nl in basis]} were not kept): the nonlinear model's "
-                     "error is the linear model's")
+    elif decided_linear:
+        notes.append(f"the nonlinear terms {names} are not supported by the data "
+                     "(nonlinear_vs_linear); the nonlinear model is simulated all the same")
     if linear_answer:
         basis = ()
     if len(model.input_names) != model.n_inputs + sum(len(nl.coefficient_names) for nl in basis):

@@ -31,7 +31,7 @@ def _validate(args: argparse.Namespace) -> int:
         print(f"validating {args.result} on {args.record} ...", file=sys.stderr)
     v = validate_model(args.result, args.record, method=args.method,
                        samples_per_period=args.samples_per_period,
-                       transient_periods=args.transient_periods)
+                       transient_periods=args.transient_periods, simulate=args.model)
     _print(v)
     if args.json_out:
         write_json(v.to_json(), args.json_out)
@@ -92,6 +92,10 @@ def register(subparsers) -> None:
     p.add_argument("--method", choices=("auto", "balance", "time"), default="auto",
                    help="auto (default): harmonic balance for periodic records, time "
                         "integration otherwise")
+    p.add_argument("--model", choices=("answer", "nonlinear"), default="answer",
+                   help="answer (default): the result's answer, the linear fit when its "
+                        "nonlinear terms were found not supported (nonlinear_vs_linear); "
+                        "nonlinear: the nonlinear model whatever that decision")
     p.add_argument("--samples-per-period", type=int, metavar="N",
                    help="N of an array file that does not give it")
     p.add_argument("--transient-periods", type=int, metavar="K",

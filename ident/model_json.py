@@ -13,7 +13,8 @@ nonlinear model without the data it came from (docs/validate.md):
     ``highpass_hz``, ``basis_oversample``, ``integration_min_snr``,
     ``steady_state_tolerance``, ``steady_periods``, ``samples_per_period``);
 ``nonlinearities``
-    the basis as used (already in the result; ``velocity_scale`` added for Coulomb).
+    the basis as used (already in the result; ``velocity_scale`` added for Coulomb, the
+    placed ``knots`` and ``velocity_knots`` for splines).
 
 Pure functions over dicts and numpy arrays.
 """
@@ -123,6 +124,9 @@ def basis_from_json(items: Sequence[Mapping[str, Any]] | None,
                           argument=str(el.get("argument", "displacement")))
             elif kind == "coulomb":
                 kw["velocity_scale"] = float(el.get("velocity_scale", 1e-3))
+            elif kind == "spline":
+                kw.update(knots=tuple(float(k) for k in el.get("knots") or ()),
+                          velocity_knots=tuple(float(k) for k in el.get("velocity_knots") or ()))
         except (KeyError, TypeError, ValueError, IndexError) as exc:
             raise IdentError(f"{where}: nonlinearities[{i}] lacks a valid {exc}") from None
         out.append(Nonlinearity(**kw))

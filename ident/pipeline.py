@@ -782,6 +782,9 @@ def _nonlinearity_json(nl: Nonlinearity, search: Any = None, truth: Mapping | No
                    argument=nl.argument, offset=nl.offset)
     elif nl.kind == "coulomb":
         out.update(velocity_scale=nl.velocity_scale, offset=nl.offset)
+    elif nl.kind == "spline":   # the placed knots: fnsi-lab validate rebuilds the columns
+        out.update(knots=list(nl.knots), velocity_knots=list(nl.velocity_knots),
+                   offset=nl.offset)
     else:
         out.update(offset=nl.offset)
     out["estimated"] = [p for p in ESTIMABLE.get(nl.kind, ()) if p in est]

@@ -171,6 +171,12 @@ def test_unsupported_terms_validate_the_linear_fit(duffing_files, tmp_path):
     (row,) = val["outputs"]
     assert row["error_rms"] == row["linear_error_rms"] == row["linear_fit_error_rms"]
     assert any("not supported" in w for w in val["warnings"])
+    # --model nonlinear: the rejected nonlinear model all the same (here a good one)
+    proc = _cli(["validate", "unsupported.json", str(duffing_files / "high.npz"), "--model",
+                 "nonlinear", "--json", "vn.json"], tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    (row,) = json.loads((tmp_path / "vn.json").read_text())["outputs"]
+    assert row["linear_fit_error_db"] - row["error_db"] >= 25.0, row
 
 
 def test_bad_inputs_give_one_line(duffing_files, tmp_path):
