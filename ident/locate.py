@@ -3,40 +3,41 @@
 ``fnsi-lab locate REC --config IDENT.yaml`` (docs/discovery.md, "Localisation"). A nonlinear
 element between the DOFs of a location vector ``L`` adds the term ``G_L(z) h(L^T q)`` to the
 output of the underlying linear system. Its shape is unknown, so each candidate location gets
-a *generic* restoring force: a few columns in the relative displacement ``x = L^T q`` that
-span odd, even and stop-like stiffness (``x|x|``, ``x^3``, ``x^2``, ``x^5``) and a damping
-pair in the relative velocity ``v`` (``v|v|``, a smoothed sign: friction). The question per
-candidate is then one of linear least squares: how much of the output that the linear model
-cannot explain do these columns explain?
+a *generic* restoring force (:func:`generic_columns`): odd and stop-like columns in the
+relative displacement ``x = L^T q`` (``x|x|``, ``x^3``, hinges at half the range on either
+side) and a damping pair in the relative velocity (``v|v|``, a smoothed sign: friction),
+each with its part linear in ``(1, x, v)`` removed. The question per candidate is then one of
+linear least squares: how much of what the linear model leaves do these columns explain?
 
-The cheap form (one decomposition for every candidate)
+Two stages (:func:`locate_input`, the one entry point)
 ------------------------------------------------------
-One linear FNSI model of order ``n`` (no basis function) gives the poles ``mu_j`` and the
-output shapes ``C Phi`` of the underlying linear system (to the distortion the linear model
-absorbed). Every input, force or nonlinear, enters the steady state as
+*Screen* (:func:`rank_locations`, every candidate, milliseconds each). One linear FNSI model
+of order ``n`` gives the poles ``mu`` and output shapes ``c = C Phi``. A conjugate pair's
+shapes ``c`` and ``conj(c)`` are nearly collinear for lightly damped modes, so the outputs
+are projected line by line on the pair's *real* directions ``Re c``, ``Im c`` (the latter
+when above 10 % of the former; noise-weighted when the lines carry a covariance). In pair
+coordinate ``xi`` the steady state of any input is a partial fraction,
+``(z - mu)(z - conj mu) xi(k) = (b0 + b1 z + b2 z^2) E(k)`` (``b2``: the feedthrough that
+band-limited samples need), and an equation-error term ``(a0 + a1 z) xi`` re-fits the pair's
+denominator (the linear model's poles are the best linear approximation's, not the
+underlying ones). Per coordinate: a weighted regression on the forces, then the reduction
+the candidate's columns add (a Schur complement of size ``3 s``). The cross-coordinate
+correlation is neglected. Score: the fraction of the linear residual removed.
 
-    Y(k) = C Phi diag(1 / (z_k - mu_j)) beta E(k),        beta = Phi^-1 B  (n x q, free)
-
-so each output spectrum is projected once on the modal coordinates,
-``eta(k) = (C~^H W_k C~)^-1 C~^H W_k Y(k)`` (``W_k``: the inverse noise covariance of the
-line; identity for noise-free data), and each mode ``j`` is a small weighted regression of
-``eta_j(k) (z_k - mu_j)`` on ``E(k)``: the forces (the linear model) or the forces plus the
-candidate's columns. The cross-mode correlation of ``eta`` is neglected (a diagonal weight
-per mode and line). A candidate costs one evaluation of its columns on the averaged motion,
-one FFT and ``n`` Schur complements of size ``s``: milliseconds, where a full FNSI per
-candidate costs a second.
+*Refinement* (:func:`refine_locations`, the screen's best few): a full FNSI at order ``n``
+with the candidate's generic columns as extended input, its steady-state residual (in noise
+variances when weighted) against the linear model's at the same order.
 
 Score and significance
 ----------------------
-``score`` is the fraction of the linear model's weighted residual (in the modal coordinates)
-that the candidate's columns remove. ``significance`` is ``-log10 p`` of the F-test of that
-reduction: ``F = (dRSS / df1) / (RSS_cand / df2)``, ``df1 = 2 s n`` real parameters added,
-``df2 = 2 F n - 2 (m + s) n`` left; the residual left after the candidate stands for the
-noise (noise-weighted when the periods give it), so no threshold is tuned to a case. A
-candidate is ``located`` when it is the best and significant (``p < 1e-3``), ``as likely as
-the best`` when its residual exceeds the best's by less than the noise allows (three
-standard deviations of the chi-square of ``df1`` degrees of freedom, in the best model's
-residual units), ``significant`` when its own F-test passes, else ``not significant``.
+``score`` is the fraction of the linear model's residual a candidate removes.
+``significance`` is ``-log10 p`` of the F-test of that reduction,
+``F = (dRSS / df1) / (RSS / df2)`` with ``df1`` the real parameters the columns add and
+``df2`` the real residuals left: the residual left after the candidate stands for the noise
+(noise-weighted when the periods give it), so no threshold is tuned to a case. The best
+refined candidate is ``located`` when its test passes at ``p < 1e-3``; a candidate is ``as
+likely as the best`` when the same test cannot tell its residual from the best's,
+``significant`` when its own test passes, else ``not significant``.
 """
 
 from __future__ import annotations
@@ -485,8 +486,6 @@ def _verdicts(raw, rss_lin: float, n_lines: int, n: int, m: int, weighted: bool,
     df1, df2 = 2 * s * n, max(2 * n_lines * n - 2 * (m + s) * n, 1)
     rss = np.array([max(rss_lin - r[1], 1e-300) for r in raw])
     best = float(rss.min()) if rss.size else 1.0
-    # noise of a residual difference in the best model's units: chi2(df1), 3 sigma
-    tol = (df1 + 3 * np.sqrt(2 * df1)) * best / df2
     order_idx = np.argsort(rss, kind="stable")
     for rank, i in enumerate(order_idx):
         cand, red, _ = raw[i]
@@ -496,7 +495,8 @@ def _verdicts(raw, rss_lin: float, n_lines: int, n: int, m: int, weighted: bool,
             verdict = "located" if sig > -np.log10(P_SIGNIFICANT) else "not significant"
         elif sig <= -np.log10(P_SIGNIFICANT):
             verdict = "not significant"
-        elif rss[i] - best <= tol and out[0].verdict == "located":
+        elif (_f_test(float(rss[i]), best, df1, df2)[1] <= -np.log10(P_SIGNIFICANT)
+              and out[0].verdict == "located"):
             verdict = "as likely as the best"
         else:
             verdict = "significant"
@@ -626,13 +626,14 @@ def _neg_log10_sf(fstat: float, df1: int, df2: int) -> float:
 def refine_locations(data, screened: "Localisation", *, order: int, weighted: bool,
                      rss_linear: float, top: int = REFINE_TOP, knots: int = REFINE_KNOTS,
                      progress: Callable[[str], None] | None = None) -> "Localisation":
-    """Re-rank the screen's best candidates by a full FNSI with a spline at each.
+    """Re-rank the screen's best candidates by a full FNSI with their generic columns.
 
-    The screen's generic columns only approximate a stop; candidates whose relative motions
-    differ by a few percent (a wheel point against several points of one stiff bracket)
-    are then told apart by how exactly a fine piecewise-linear force at each reproduces the
-    measured outputs. The refined candidates come first, by their residual; the others keep
-    their screen verdict after them.
+    The screen fixes the linear model's output shapes and fits each mode pair apart; the
+    refinement lets FNSI find the model with the candidate's columns as inputs, which tells
+    apart candidates whose relative motions differ by a few percent (a wheel point against
+    several points of one stiff bracket). ``knots`` adds a spline (finer still, costlier).
+    The refined candidates come first, by their residual; the others keep their screen
+    verdict after them (``located`` and ``as likely as the best`` become ``significant``).
     """
     head = screened.candidates[:top]
     p, F = data.n_outputs, data.n_lines

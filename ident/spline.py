@@ -33,8 +33,8 @@ __all__ = ["hinge_columns", "resolve_knots", "needs_knots", "SplineCurve", "spli
            "suggest_parametric", "suggested_config", "CURVE_POINTS", "SEARCH_MARGIN"]
 
 #: Knots of the spline that ``nonlinearities: auto`` puts at the located element (on the
-#: SmallSat, 12 knots read the NC2-Z clearances within 1.9 % and the contact stiffnesses
-#: within 1.5 %; 24 within 1.5 % and 0.8 % at 4x the time: docs/discovery.md).
+#: SmallSat, 12 knots read the NC2-Z clearances within 1.8 % and the contact stiffnesses
+#: within 1.5 %; 24 within 1.7 % and 0.9 %: docs/discovery.md).
 AUTO_KNOTS = 12
 #: Points of a reported curve over the measured range.
 CURVE_POINTS = 201
