@@ -262,9 +262,18 @@ def locate(source: Any, config: Any = None, *, candidates: Any = "all",
     if cfg is None:
         from dataclasses import replace
         cfg = replace(default_config(inp), nonlinearities=())
+    from fnsi_lab.ident.errors import IdentError
+
     if isinstance(candidates, (str, os.PathLike)) and str(candidates) not in (
             "all", "channels", "pairs"):
+        if not Path(os.fspath(candidates)).exists():
+            raise IdentError(f"candidates {os.fspath(candidates)!r}: neither all, channels, "
+                             "pairs nor an existing file (fix: one of those words, or the path "
+                             "of a YAML/JSON list of location vectors)")
         candidates = loc.read_candidates_file(os.fspath(candidates))
+    for name, value in (("refine", refine), ("knots", knots)):
+        if value is not None and int(value) < 0:
+            raise IdentError(f"{name} {value} is negative (fix: 0 or more)")
     return loc.locate_input(inp, cfg, candidates=candidates, order=order,
                             refine=loc.REFINE_TOP if refine is None else int(refine),
                             knots=loc.REFINE_KNOTS if knots is None else int(knots),

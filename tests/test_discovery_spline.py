@@ -192,3 +192,15 @@ def test_restoring_force_is_drawn_in_rerun_and_the_report(tmp_path):
     page = render_report(result)
     assert "Restoring force (kind: spline)" in page and "fig-restoring-force" in page
     assert "kind: trilinear" in page
+
+
+def test_replay_with_a_spline_config_draws_the_curve(smallsat, tmp_path):
+    """The live service (fnsi-lab replay --ident) logs the spline's force curve to its Rerun
+    recording, next to the other identification figures."""
+    rrd = tmp_path / "spline.rrd"
+    r = _run("replay", smallsat, "--ident", "smallsat39-spline", "--rrd", rrd,
+             "--speed", "1000")
+    assert r.returncode == 0, r.stderr
+    listing = _run("view", rrd, "--list")
+    assert listing.returncode == 0, listing.stderr
+    assert "/ident/restoring_force/c0/force" in listing.stdout
