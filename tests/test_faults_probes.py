@@ -483,18 +483,24 @@ def test_ctrl_c_ends_batch_quietly_with_130(tmp_path, when):
                             start_new_session=True)  # its own group, as a terminal's job
     try:
         deadline = time.monotonic() + 120
-        if when == "starting":  # while the cluster spawns its workers
-            time.sleep(1.5)
+        if when == "starting":  # while the cluster spawns its workers: Ctrl-C every 0.3 s
+            time.sleep(1.0)     # (one may fall in the 0.1 s the fork server is spawned)
+            t0 = time.monotonic()
+            while proc.poll() is None and time.monotonic() - t0 < 30:
+                os.killpg(proc.pid, signal.SIGINT)
+                time.sleep(0.3)
         else:  # once the first input is done
             while time.monotonic() < deadline and not list(results.glob("*.json")):
                 time.sleep(0.1)
-        os.killpg(proc.pid, signal.SIGINT)
+            os.killpg(proc.pid, signal.SIGINT)
         t0 = time.monotonic()
         out, err = proc.communicate(timeout=60)
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
-    assert proc.returncode == 130, (out, err)
+    # a Ctrl-C repeated while the process exits ends it by the signal itself (-2), which a
+    # shell reports as 130 too; one Ctrl-C gives 130
+    assert proc.returncode == 130 or when == "starting" and proc.returncode == -2, (out, err)
     assert time.monotonic() - t0 < 30
     assert "Traceback" not in err and "CommClosedError" not in err and "Error" not in err, err
     assert err.strip().splitlines()[-1] == "fnsi-lab batch: interrupted"

@@ -525,6 +525,8 @@ def _start_forkserver_ignoring_sigint() -> None:
     (:mod:`fnsi_lab.campaign.worker_setup`), once started.
     """
     import multiprocessing
+    import signal
+    import threading
     from multiprocessing import forkserver
 
     module = "fnsi_lab.campaign._forkserver_sigint"
@@ -533,36 +535,92 @@ def _start_forkserver_ignoring_sigint() -> None:
     others = [m for m in getattr(forkserver._forkserver, "_preload_modules", None) or []
               if m not in ("__main__", module)]
     multiprocessing.set_forkserver_preload([module, *others])
-    forkserver.ensure_running()
+    if threading.current_thread() is not threading.main_thread():
+        forkserver.ensure_running()
+        return
+    # the server inherits an ignored SIGINT through its exec: no Ctrl-C interrupts its own
+    # start-up either (here ignored only while it is spawned, about 0.1 s)
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        forkserver.ensure_running()
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 @contextlib.contextmanager
 def _local_cluster(n_workers: int) -> Iterator[Any]:
-    """A LocalCluster of ``n_workers`` one-thread worker processes whose start-up no Ctrl-C
-    interrupts (:func:`_start_forkserver_ignoring_sigint`); closed on exit."""
+    """A LocalCluster of ``n_workers`` one-thread worker processes; closed on exit.
+
+    Its workers ignore SIGINT (:func:`_start_forkserver_ignoring_sigint`). A Ctrl-C or
+    SIGTERM while it starts is held until it has started (1-4 s), then it is closed and the
+    interrupt raised: a cluster stopped half-way leaves workers that die with tracebacks.
+    """
     from distributed import LocalCluster
 
     _start_forkserver_ignoring_sigint()
-    try:
+    with _interrupts_held() as held:
         cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
                                dashboard_address=None, silence_logs=logging.CRITICAL)
-    except KeyboardInterrupt:  # Ctrl-C while it starts: no half-started cluster to close
-        import atexit
-
-        from distributed.deploy import spec
-
+    if held():
         _quiet_shutdown()
-        atexit.unregister(spec.close_clusters)  # it asserts on workers still starting;
-        raise                                   # they exit with this process (their pipe)
+        cluster.close()
+        raise KeyboardInterrupt
     with cluster:
         yield cluster
 
 
+@contextlib.contextmanager
+def _interrupts_held() -> Iterator[Callable[[], bool]]:
+    """SIGINT and SIGTERM recorded, not raised, inside the block (main thread only);
+    yields a function telling whether one came."""
+    import signal
+    import threading
+
+    came: list[int] = []
+    if threading.current_thread() is not threading.main_thread():
+        yield lambda: False
+        return
+    signals = (signal.SIGINT, signal.SIGTERM)
+    previous = {sig: signal.signal(sig, lambda signum, frame: came.append(signum))
+                for sig in signals}
+    try:
+        yield lambda: bool(came)
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
 def _quiet_shutdown() -> None:
     """After Ctrl-C: the cluster closes with its workers mid-task; what Dask logs about the
-    closing connections (CommClosedError, CancelledError) is not news to the user."""
+    closing connections (CommClosedError, CancelledError) is not news to the user, and a
+    second Ctrl-C must not interrupt that close (tracebacks from its atexit handler): both
+    are undone by :func:`_interrupt_state` when the cluster is gone."""
+    import signal
+    import threading
+
     for name in ("distributed", "tornado", "asyncio"):
         logging.getLogger(name).setLevel(logging.CRITICAL)
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+@contextlib.contextmanager
+def _interrupt_state() -> Iterator[None]:
+    """Restore what :func:`_quiet_shutdown` changed (SIGINT handler, log levels) on exit."""
+    import signal
+    import threading
+
+    main = threading.current_thread() is threading.main_thread()
+    handler = signal.getsignal(signal.SIGINT) if main else None
+    levels = {name: logging.getLogger(name).level for name in ("distributed", "tornado",
+                                                                "asyncio")}
+    try:
+        yield
+    finally:
+        if main and handler is not None:
+            signal.signal(signal.SIGINT, handler)
+        for name, level in levels.items():
+            logging.getLogger(name).setLevel(level)
 
 
 @contextlib.contextmanager
@@ -605,7 +663,8 @@ def dask_client(scheduler: str = "local", workers: int | None = None, *,
         # temporary array is mapped, zero-filled and unmapped again.
         # Ctrl-C in a terminal reaches the worker processes too: they ignore it (a preload)
         # and the cluster is closed quietly from here (no worker tracebacks, exit 130).
-        with dask.config.set({"distributed.worker.profile.enabled": False,
+        with _interrupt_state(), \
+                dask.config.set({"distributed.worker.profile.enabled": False,
                               "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
                               "distributed.worker.preload": [_WORKER_SETUP],
                               "distributed.worker.multiprocessing-method": "forkserver"}), \
