@@ -504,3 +504,49 @@ def test_ctrl_c_ends_batch_quietly_with_130(tmp_path, when):
     assert time.monotonic() - t0 < 30
     assert "Traceback" not in err and "CommClosedError" not in err and "Error" not in err, err
     assert err.strip().splitlines()[-1] == "fnsi-lab batch: interrupted"
+
+
+# ---------------------------------------------------------------------------- messages
+def test_too_many_transient_periods_names_the_field_and_the_fix(tmp_path):
+    """Was 'transient_periods=10 leaves no period out of 4': no fix."""
+    n = 256
+    u = np.cos(2 * np.pi * 5 * np.arange(4 * n) / n)
+    data = tmp_path / "four.npz"
+    np.savez(data, u=u, y=0.1 * u, fs=256.0, N=n)
+    config = tmp_path / "tp.yaml"
+    config.write_text("band_hz: [2, 40]\ntransient_periods: 10\n")
+    r = _cli("ident", str(data), "--config", str(config), "--order", "2")
+    assert r.returncode == 2
+    line = _one_line_error(r.stderr)
+    assert "transient_periods: 10 leaves no period out of 4" in line
+    assert "fix: give fewer transient periods, at most 3" in line
+
+
+def test_an_order_above_the_decomposition_names_the_fix():
+    """Was 'order 0 is outside 1..117 (max order of this decomposition)': no fix (the
+    command line now refuses 0 itself; a too high order reaches the core from the API)."""
+    from fnsi_lab.ident import fnsi
+    from fnsi_lab.ident.errors import IdentError
+
+    rng = np.random.default_rng(0)
+    u = rng.standard_normal((512, 1))
+    y = np.column_stack([np.convolve(u[:, 0], [1.0, 0.5], "same"), u[:, 0]])
+    data = fnsi.prepare_frequency_data(u=u, y=y, sample_rate_hz=256.0, band_hz=(1, 100))
+    dec = fnsi.subspace_decomposition(data, max_order=4)
+    with pytest.raises(IdentError) as exc:
+        fnsi.model_at_order(dec, data, dec.max_order + 1)
+    assert f"order: {dec.max_order + 1} is outside 1..{dec.max_order}" in str(exc.value)
+    assert "fix:" in str(exc.value)
+
+
+def test_a_pace_of_zero_names_the_option_and_the_fix():
+    """`live --speed 0` said 'pace must be > 0': argparse refuses it now (see above); the
+    source's own check, for the API, names the option and the fix as well."""
+    from fnsi_lab.daq.config import load_experiment
+    from fnsi_lab.daq.registry import make_source
+    from fnsi_lab.errors import ConfigError
+
+    with pytest.raises(ConfigError) as exc:
+        make_source(load_experiment(str(Path(__file__).parents[1] / "daq" / "data" /
+                                        "lumped.yaml")), pace=0)
+    assert "--speed" in str(exc.value) and "fix:" in str(exc.value)
