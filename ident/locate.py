@@ -335,16 +335,15 @@ def _pair_coordinates(data, a_d: np.ndarray, c_d: np.ndarray, weighted: bool):
     basis = np.stack(dirs, axis=1)
     basis = basis / np.linalg.norm(basis, axis=0)
     Y = data.Y
-    cov = data.noise_cov if weighted else None
-    if cov is None:
+    # the variances only: a full covariance from a few periods is rank-deficient (P - 1 < p;
+    # the pipeline weights by the variances then too, ident.fnsi._inverse_covariance)
+    var_y = data.noise_var if weighted else None
+    if var_y is None:
         ginv = np.linalg.pinv(basis.T @ basis)
         xi = Y @ (ginv @ basis.T).T
         var = np.broadcast_to(np.diag(ginv), xi.shape)
     else:
-        if cov.ndim == 2:
-            wb = basis[None] / cov[:, :, None]                      # W_k Phi, (F, p, nc)
-        else:
-            wb = np.linalg.solve(cov, np.broadcast_to(basis, (Y.shape[0],) + basis.shape))
+        wb = basis[None] / var_y[:, :, None]                        # W_k Phi, (F, p, nc)
         ginv = np.linalg.pinv(np.einsum("pi,kpj->kij", basis, wb), hermitian=True)
         xi = np.einsum("kij,kj->ki", ginv, np.einsum("kpi,kp->ki", wb.conj(), Y))
         var = np.real(np.einsum("kii->ki", ginv))
@@ -408,7 +407,7 @@ def rank_locations(data, model, candidates: Sequence[Mapping[str, float]], *,
     Localisation
     """
     t0 = time.perf_counter()
-    weighted = bool(weighted and data.noise_cov is not None)
+    weighted = bool(weighted and data.noise_var is not None)
     keep = screen_lines(data)
     xi, den, var = _pair_coordinates(data, model.a_d, model.c_d, weighted)
     xi, den, var = xi[keep], den[keep], var[keep]

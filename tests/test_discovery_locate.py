@@ -151,3 +151,24 @@ def test_candidates_from_a_file_through_the_cli(gvt, tmp_path):
     bad = _run("locate", gvt[98], "--config", gvt["config"], "--candidates",
                tmp_path / "missing.yaml")
     assert bad.returncode == 2 and "missing.yaml" in bad.stderr
+
+
+def test_noisy_smallsat_with_periods_still_locates_the_stop(tmp_path):
+    """40 dB white noise on every channel, 4 steady periods (the noise estimate weights the
+    screen and the refinement; a full covariance from 4 periods is rank-deficient, so the
+    variances are used): the NC2 pair stays first and located, measured 57x below the
+    next refined residual. (One steady period has no noise estimate: then noisy,
+    barely moving channels win, docs/discovery.md "Limits".)"""
+    from fnsi_lab.daq.config import packaged_experiment
+
+    text = packaged_experiment("smallsat.yaml").read_text()
+    text = text.replace("snr_db: null", "snr_db: 40").replace("periods: 6", "periods: 9")
+    exp = tmp_path / "ss40.yaml"
+    exp.write_text(text)
+    rec = tmp_path / "ss40.mcap"
+    r = _run("acquire", "--config", exp, "--out", rec)
+    assert r.returncode == 0, r.stderr
+    loc = fnsi_lab.locate(rec, "smallsat39")
+    assert loc.weighted
+    assert loc.candidates[0].channels == {"NC2W-Z": 1.0, "NC2B-Z": -1.0}
+    assert loc.located is not None
