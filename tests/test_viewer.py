@@ -331,7 +331,7 @@ def test_view_without_a_display_serves_the_web_viewer_and_prints_its_url(rec_pat
     finally:
         proc.send_signal(signal.SIGINT)
         try:
-            out, err = proc.communicate(timeout=30)
+            out, err = proc.communicate(timeout=60)  # a loaded 2-core machine
         except subprocess.TimeoutExpired:
             proc.kill()
             out, err = proc.communicate()

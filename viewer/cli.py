@@ -457,6 +457,11 @@ def _cmd_view(args: argparse.Namespace) -> int:
                     time.sleep(3600)
             except KeyboardInterrupt:
                 pass
+            # Ctrl-C: the file was sent long ago; a bounded flush, so that stopping never
+            # waits on a viewer connection
+            rec.flush(timeout_sec=5.0)
+            rec.disconnect()
+            return 0
         close_stream(rec, sinks)
     return 0
 
