@@ -478,8 +478,6 @@ def rank_locations(data, model, candidates: Sequence[Mapping[str, float]], *,
 def _verdicts(raw, rss_lin: float, n_lines: int, n: int, m: int, weighted: bool, order: int,
               timings: dict) -> Localisation:
     """Scores, F-tests and verdicts of the candidates' residual reductions."""
-    from scipy import stats
-
     out: list[LocationScore] = []
     s = max((r[2] for r in raw), default=0)
     df1, df2 = 2 * s * n, max(2 * n_lines * n - 2 * (m + s) * n, 1)
@@ -488,7 +486,8 @@ def _verdicts(raw, rss_lin: float, n_lines: int, n: int, m: int, weighted: bool,
     order_idx = np.argsort(rss, kind="stable")
     for rank, i in enumerate(order_idx):
         cand, red, _ = raw[i]
-        fstat = (red / df1) / (rss[i] / df2)
+        with np.errstate(over="ignore"):
+            fstat = (red / df1) / (rss[i] / df2)
         sig = _neg_log10_sf(fstat, df1, df2)
         if rank == 0:
             verdict = "located" if sig > -np.log10(P_SIGNIFICANT) else "not significant"
@@ -608,8 +607,6 @@ def refine_candidate(data, candidate: Mapping[str, float], *, order: int, weight
 
 def _f_test(rss_big: float, rss_small: float, df1: int, df2: int) -> tuple[float, float]:
     """F statistic and ``-log10 p`` of a residual reduction ``rss_big -> rss_small``."""
-    from scipy import stats
-
     fstat = max(rss_big - rss_small, 0.0) / df1 / (max(rss_small, 1e-300) / df2)
     return float(fstat), _neg_log10_sf(fstat, df1, df2)
 
