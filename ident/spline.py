@@ -41,6 +41,9 @@ CURVE_POINTS = 201
 #: A suggested clearance is searched within this fraction of the value read off the curve
 #: (the read-off is a piecewise-linear approximation; the search then pins it down).
 SEARCH_MARGIN = 0.1
+#: A suggested form must explain at least half of the curve (relative misfit below this):
+#: above, it fits the curve worse than half of "no force at all" and none is suggested.
+MAX_MISFIT = 0.5
 #: A side of the curve whose outer stiffness is below this fraction of the largest secant
 #: stiffness on either side is free (no stop there).
 FREE_SIDE = 0.05
@@ -280,10 +283,14 @@ def _power_law(x: np.ndarray, f: np.ndarray) -> dict:
     if sel.sum() < 4:
         return {"exponent": None, "coefficient": None, "residual": np.inf}
     e, logc = np.polyfit(np.log(np.abs(x[sel])), np.log(np.abs(f[sel])), 1)
+    if not e > 0:    # a force growing as the motion shrinks is no spring law
+        return {"exponent": None, "coefficient": None, "residual": np.inf}
     c = float(np.exp(logc))
     model = c * np.abs(x) ** e * np.sign(x)
     den = float(np.sum(f ** 2)) or 1.0
-    return {"exponent": float(e), "coefficient": c, "residual": float(np.sum((f - model) ** 2) / den)}
+    res = float(np.sum((f - model) ** 2) / den)
+    return {"exponent": float(e), "coefficient": c,
+            "residual": res if np.isfinite(res) else np.inf}
 
 
 def suggest_parametric(curve: SplineCurve) -> dict:
@@ -308,8 +315,17 @@ def suggest_parametric(curve: SplineCurve) -> dict:
     x, f = curve.x, curve.force
     if not np.any(f):
         return {"kind": "none", "reason": "the curve is flat (no nonlinearity beyond the noise)"}
-    if curve.argument == "velocity":
-        return _friction(x, f, curve.knots)
+    out = (_friction(x, f, curve.knots) if curve.argument == "velocity"
+           else _displacement_form(curve))
+    if not out.get("misfit", 0.0) <= MAX_MISFIT:    # NaN too
+        return {"kind": "none", "reason": f"the best form ({out['kind']}) leaves "
+                f"{100 * out['misfit']:.0f} % of the curve unexplained", "closest": out}
+    return out
+
+
+def _displacement_form(curve: SplineCurve) -> dict:
+    """Stops against a power law on a displacement curve (:func:`suggest_parametric`)."""
+    x, f = curve.x, curve.force
     pos, neg = _side(x, f, +1, curve.density), _side(x, f, -1, curve.density)
     power = _power_law(x, f)
     k_ref = max(abs(pos["stiffness"]), abs(neg["stiffness"]))
@@ -333,16 +349,22 @@ def suggest_parametric(curve: SplineCurve) -> dict:
 
 
 def _friction(v: np.ndarray, f: np.ndarray, knots: Sequence[float]) -> dict:
-    """Friction level and sticking velocity of a velocity curve."""
+    """Friction level and sticking velocity of a velocity curve.
+
+    On each side, a line fitted to the outer half of the range (beyond the sticking ramp);
+    its intercept at zero velocity is the friction level on that side (the mean of the two
+    is reported), its slope a viscous part left out of the suggestion.
+    """
     levels = []
     for sign in (+1, -1):
-        s = _side(v, f, sign)
-        sel = (v * sign) > 0
-        if not np.any(sel):
+        side = (v * sign) > 0
+        if not np.any(side):
             continue
-        i = np.argmax(np.abs(v[sel]))
-        intercept = float(f[sel][i] - s["stiffness"] * v[sel][i])
-        levels.append(intercept * sign)
+        outer = side & (np.abs(v) >= 0.5 * np.max(np.abs(v[side])))
+        if outer.sum() < 2:
+            continue
+        slope, intercept = np.polyfit(v[outer], f[outer], 1)
+        levels.append(float(intercept) * sign)
     level = float(np.mean(levels)) if levels else 0.0
     t = np.asarray(knots, float)
     scale = float(np.min(np.abs(t))) if t.size else 0.0
@@ -364,7 +386,9 @@ def suggestion_element(nl: Nonlinearity, suggestion: Mapping, *,
     kind = suggestion.get("kind")
     if kind in (None, "none"):
         return None
-    item: dict[str, Any] = {"name": nl.name, "kind": kind,
+    name = nl.name if suggestion.get("argument", "displacement") == "displacement" \
+        else f"{nl.name}-friction"
+    item: dict[str, Any] = {"name": name, "kind": kind,
                             "channels": {k: (int(v) if float(v).is_integer() else v)
                                          for k, v in nl.channels.items()}}
 
@@ -420,7 +444,7 @@ def suggested_config(raw_config: Mapping | None, basis: Sequence[Nonlinearity],
             items.append(None)
             continue
         for c in by_el.get(nl.name, []):
-            item = suggestion_element(nl, c.suggestion)
+            item = suggestion_element(nl, dict(c.suggestion, argument=c.argument))
             s = c.suggestion
             if item is None:
                 notes.append(f"{nl.name} ({c.argument}): {s.get('reason', 'no form fits')}")

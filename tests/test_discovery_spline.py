@@ -204,3 +204,27 @@ def test_replay_with_a_spline_config_draws_the_curve(smallsat, tmp_path):
     listing = _run("view", rrd, "--list")
     assert listing.returncode == 0, listing.stderr
     assert "/ident/restoring_force/c0/force" in listing.stdout
+
+
+def test_friction_level_and_no_form_for_a_shapeless_curve():
+    """A velocity curve of 40 N friction (steep ramp between +-1 mm/s, flat outside) gives
+    Coulomb at 40 N; a curve no form explains gets 'none' with the closest form, and the
+    config names a velocity element apart from the displacement one."""
+    from fnsi_lab.ident.spline import suggested_config
+
+    v = np.linspace(-0.02, 0.02, 201)
+    f = 40 * np.clip(v / 1e-3, -1, 1)
+    c = SplineCurve("j", "velocity", v, f, np.zeros_like(v), (-1e-3, 1e-3), np.zeros(0))
+    s = suggest_parametric(c)
+    assert s["kind"] == "coulomb" and abs(s["values"][0] - 40) < 0.5
+    c.suggestion = s
+    nl = Nonlinearity(name="j", kind="spline", channels={"A": 1, "B": -1},
+                      knots=(-1.0, 1.0), velocity_knots=(-1e-3, 1e-3))
+    mapping, text = suggested_config({"band_hz": [1, 10]}, (nl,), [c])
+    assert [e["name"] for e in mapping["nonlinearities"]] == ["j-friction"]
+    parse_ident_config(mapping)          # the suggestion parses as a config
+    x = np.linspace(-1, 1, 201)
+    wiggle = SplineCurve("j", "displacement", x, np.sin(40 * x),
+                         np.zeros_like(x), (), np.zeros(0))
+    s = suggest_parametric(wiggle)
+    assert s["kind"] == "none" and "closest" in s
