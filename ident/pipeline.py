@@ -18,20 +18,23 @@ import time
 import warnings
 from dataclasses import dataclass, field, replace
 from itertools import combinations
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Callable, Mapping, NamedTuple, Sequence
 
 import numpy as np
 
+from fnsi_lab.ident.auto_result import AutoResult
 from fnsi_lab.ident.basis import ESTIMABLE, Nonlinearity
 from fnsi_lab.ident.coefficients import (CoefficientSpectra, coefficient_spread,
                                          nonlinear_coefficients, spread_function,
                                          summarize_coefficients)
 from fnsi_lab.ident.config import IdentConfig
 from fnsi_lab.ident.errors import IdentError, IdentWarning, NoExcitedLineError
-from fnsi_lab.ident.fnsi import StateSpaceModel, model_at_order, subspace_decomposition
+from fnsi_lab.ident.fnsi import (StateSpaceModel, SubspaceDecomposition, model_at_order,
+                                 subspace_decomposition)
 from fnsi_lab.ident.io import IdentInput, select_channels
 from fnsi_lab.ident.modal import ModalModel
 from fnsi_lab.ident.model_json import processing_json, state_space_json
+from fnsi_lab.ident.nested import NestedTest
 from fnsi_lab.ident.output_error import (MAX_MISFIT, OutputErrorFit, omitted_mode_evidence,
                                         refine_output_error, refinement_case)
 from fnsi_lab.ident.parameter_search import (DEFAULT_SEARCH_ORDER, estimate_basis_parameters,
@@ -41,13 +44,15 @@ from fnsi_lab.ident.reduction import reduce_model
 from fnsi_lab.ident.regressors import regressor_conditioning
 from fnsi_lab.ident.request import (DEFAULT_ORDERS, IdentRequest, basis_from_truth,
                                     default_config, resolve_request)
+from fnsi_lab.ident.result import Coefficient, Mode
 from fnsi_lab.ident.verdict import coefficient_verdict, not_supported
 from fnsi_lab.ident.units import add_coefficient_units, result_units
 from fnsi_lab.ident.pole_fate import result_fates
 from fnsi_lab.ident.spline import needs_knots, resolve_knots
 from fnsi_lab.progress import Progress
 
-__all__ = ["IdentSession", "Identification", "prepare_session", "identify_input",
+__all__ = ["IdentSession", "Identification", "Mode", "Coefficient", "prepare_session",
+           "identify_input",
            "default_config", "basis_from_truth", "apply_recording_truth", "DEFAULT_ORDERS",
            "identify_request"]
 
@@ -229,7 +234,7 @@ def prepare_session(inp: IdentInput, cfg: IdentConfig, *, search_order: int | No
                         + (list(search.warnings) if search is not None else []))
 
 
-def _structural_start(session: IdentSession, ident: "Identification") -> StateSpaceModel:
+def _structural_start(session: IdentSession, ident: "_Fit") -> StateSpaceModel:
     """Where an output-error refinement starts: the answer, or for the robust pipeline its
     physical modes alone.
 
@@ -261,7 +266,7 @@ def _structural_start(session: IdentSession, ident: "Identification") -> StateSp
 SPLIT_HALF_BANDWIDTHS = 3.0
 
 
-def _split_candidates(ident: "Identification") -> list[int]:
+def _split_candidates(ident: "_Fit") -> list[int]:
     """The weaker (lower MDI) mode of every close pair of the robust answer's physical
     modes, indices into its MDI table."""
     auto = ident.auto
@@ -279,7 +284,7 @@ def _split_candidates(ident: "Identification") -> list[int]:
     return sorted(weaker)
 
 
-def _merged_start(session: IdentSession, ident: "Identification",
+def _merged_start(session: IdentSession, ident: "_Fit",
                   weaker: Sequence[int]) -> StateSpaceModel | None:
     """A start that holds the robust answer's physical modes less ``weaker``, each close
     pair as one mode: the highest-order model of the sweep below the MDI order with a pole
@@ -292,6 +297,7 @@ def _merged_start(session: IdentSession, ident: "Identification",
     itself.
     """
     auto = ident.auto
+    assert auto is not None, "close pairs exist only in a robust answer"
     md = auto.modal_dominancy
     kept = [int(i) for i in np.flatnonzero(auto.physical) if i not in weaker]
     f_kept = md.frequency_hz[kept]
@@ -313,7 +319,7 @@ def _merged_start(session: IdentSession, ident: "Identification",
     return None
 
 
-def _fit_without_split_modes(session: IdentSession, ident: "Identification",
+def _fit_without_split_modes(session: IdentSession, ident: "_Fit",
                              run: Callable[[StateSpaceModel], OutputErrorFit]
                              ) -> OutputErrorFit | None:
     """The refinement started without the weaker mode of each close pair, kept when no
@@ -330,6 +336,7 @@ def _fit_without_split_modes(session: IdentSession, ident: "Identification",
     start = _merged_start(session, ident, weaker) if weaker else None
     if start is None:
         return None
+    assert ident.auto is not None, "close pairs exist only in a robust answer"
     full = ident.auto.full_model
     md = ident.auto.modal_dominancy
     try:
@@ -355,7 +362,7 @@ def _fit_without_split_modes(session: IdentSession, ident: "Identification",
     return fit
 
 
-def _refine(session: IdentSession, ident: "Identification") -> Any:
+def _refine(session: IdentSession, ident: "_Fit") -> Any:
     """The output-error refinement of FNSI's answer that the configuration asks for
     (docs/ident.md).
 
@@ -483,9 +490,29 @@ def _summaries(spectra: CoefficientSpectra | None,
     return summaries
 
 
-@dataclass(eq=False)
+def answer_modes(fit: _Fit, output_error: OutputErrorFit | None = None) -> list[Mode]:
+    """Physical modes of an answer, sorted by frequency: every mode of ``fit.model``, or for
+    the robust pipeline those of its physical poles (the MDI table's; after an output-error
+    refinement the same modes refined, or dropped)."""
+    m = fit.model.poles.modes()
+    keep = np.ones(m["frequency_hz"].size, bool)
+    if fit.auto is not None:
+        physical = [r["frequency_hz"] for r in fit.auto.mdi_table() if r["physical"]]
+        if output_error is not None:   # the same modes, refined (or dropped)
+            physical = [g for g in (output_error.refined_frequency(f)
+                                    for f in physical) if g is not None]
+        keep = np.array([any(abs(f - g) <= 1e-6 * max(g, 1e-12) for g in physical)
+                         for f in m["frequency_hz"]], bool)
+    return [Mode(frequency_hz=float(f), damping_ratio=float(z), stable=bool(s),
+                 shape=np.asarray(m["mode_shapes"][:, k]))
+            for k, (f, z, s, kp) in enumerate(zip(m["frequency_hz"], m["damping_ratio"],
+                                                   m["stable"], keep)) if kp]
+
+
+@dataclass(frozen=True, eq=False)
 class Identification:
-    """The answer of one identification, with its evidence.
+    """The answer of one identification, with its evidence; frozen, built once by
+    :func:`identify_request` with everything it holds (docs/api.md, "The result").
 
     Attributes
     ----------
@@ -514,11 +541,13 @@ class Identification:
     session: IdentSession
     model: StateSpaceModel
     method: str
-    auto: Any = None
-    decomposition: Any = None
-    output_error: Any = None
+    auto: AutoResult | None = None
+    decomposition: SubspaceDecomposition | None = None
+    output_error: OutputErrorFit | None = None
     coefficient_spectra: CoefficientSpectra | None = None
-    nested: Any = None
+    nested: NestedTest | None = None
+    #: derived records computed on first use (modes, coefficients, curves): never patched
+    _cache: dict[str, Any] = field(default_factory=dict, init=False, repr=False)
 
     def coefficient_spectra_of(self, model: StateSpaceModel) -> CoefficientSpectra | None:
         """``c_a(w)`` of another model of the same data (e.g. ``auto.full_model``)."""
@@ -540,12 +569,35 @@ class Identification:
         return int(self.model.order)
 
     @property
-    def coefficients(self) -> list[dict]:
-        """Per coefficient: ``name``, ``value`` (the declared answer), ``mean_real``,
-        ``std_real``, ``ls_value``, ``error_percent`` ... (docs/ident.md)."""
-        out = _summaries(self.coefficient_spectra, self.session)
-        if self.nested is not None and not self.nested.supported:
-            out = [not_supported(c, self.nested.statement) for c in out]
+    def coefficients(self) -> list[Coefficient]:
+        """Per coefficient a :class:`~fnsi_lab.ident.result.Coefficient`: ``name``,
+        ``value`` (the declared answer), ``mean_real``, ``std_real``, ``ls_value``,
+        ``error_percent``, ``verdict``, ``unit`` ... (docs/ident.md), read as attributes or
+        as keys (``c["value"]``)."""
+        if "coefficients" not in self._cache:
+            out = _summaries(self.coefficient_spectra, self.session)
+            if self.nested is not None and not self.nested.supported:
+                out = [not_supported(c, self.nested.statement) for c in out]
+            units = self.units.get("coefficients") or {}
+            curves = self._curves_by_coefficient(out)
+            self._cache["coefficients"] = [
+                Coefficient.from_summary(c, unit=units.get(c["name"]),
+                                         curve=curves.get(c["name"])) for c in out]
+        return list(self._cache["coefficients"])
+
+    def _curves_by_coefficient(self, summaries: list[dict]) -> dict[str, dict]:
+        """``kind: spline``: each element's force curve (as a dict) under its first
+        coefficient (displacement) or its first velocity coefficient."""
+        basis = self.config.nonlinearities
+        curves = self._spline_curves({c["name"]: c["value"] for c in summaries})
+        firsts = {nl.name: nl.coefficient_names[0] for nl in basis}
+        vel = {nl.name: next((n for n in nl.coefficient_names if ":v" in n), None)
+               for nl in basis}
+        out: dict[str, dict] = {}
+        for c in curves:
+            key = firsts[c.element] if c.argument == "displacement" else vel[c.element]
+            if key is not None:
+                out[key] = c.to_dict()
         return out
 
     @property
@@ -554,25 +606,17 @@ class Identification:
         return self.nested is not None and not self.nested.supported
 
     @property
-    def modes(self) -> list[dict]:
-        """Physical modes of the answer, sorted by frequency: ``frequency_hz``,
-        ``damping_ratio``, ``stable``, ``shape`` (complex, one entry per output); the linear
-        fit's when the nonlinear terms are not supported (:attr:`nested`)."""
-        if self.linear_answer:
+    def modes(self) -> list[Mode]:
+        """Physical modes of the answer, sorted by frequency, as
+        :class:`~fnsi_lab.ident.result.Mode`: ``frequency_hz``, ``damping_ratio``,
+        ``stable``, ``shape`` (complex, one entry per output); the linear fit's when the
+        nonlinear terms are not supported (:attr:`nested`)."""
+        if self.nested is not None and self.linear_answer and self.nested.linear is not None:
             return self.nested.linear.modes
-        m = self.model.poles.modes()
-        keep = np.ones(m["frequency_hz"].size, bool)
-        if self.auto is not None:
-            physical = [r["frequency_hz"] for r in self.auto.mdi_table() if r["physical"]]
-            if self.output_error is not None:   # the same modes, refined (or dropped)
-                physical = [g for g in (self.output_error.refined_frequency(f)
-                                        for f in physical) if g is not None]
-            keep = np.array([any(abs(f - g) <= 1e-6 * max(g, 1e-12) for g in physical)
-                             for f in m["frequency_hz"]], bool)
-        return [{"frequency_hz": float(f), "damping_ratio": float(z), "stable": bool(s),
-                 "shape": np.asarray(m["mode_shapes"][:, k])}
-                for k, (f, z, s, kp) in enumerate(zip(m["frequency_hz"], m["damping_ratio"],
-                                                       m["stable"], keep)) if kp]
+        if "modes" not in self._cache:
+            self._cache["modes"] = answer_modes(
+                _Fit(self.model, self.method, self.auto, self.decomposition), self.output_error)
+        return list(self._cache["modes"])
 
     @property
     def units(self) -> dict:
@@ -587,12 +631,18 @@ class Identification:
     def spline_curves(self) -> list:
         """Force curves of the ``kind: spline`` elements with their bands and suggested
         parametric forms (:func:`ident.spline.spline_curves`; empty without spline)."""
+        return self._spline_curves({c.name: c.value for c in self.coefficients})
+
+    def _spline_curves(self, values: dict[str, float]) -> list:
+        """:attr:`spline_curves` at the coefficient ``values`` (computed once)."""
         basis = self.config.nonlinearities
         if self.coefficient_spectra is None or not any(nl.kind == "spline" for nl in basis):
             return []
-        from fnsi_lab.ident.spline import spline_curves
-        values = {c["name"]: c["value"] for c in self.coefficients}
-        return spline_curves(basis, self.coefficient_spectra, values, self.data.motion)
+        if "spline_curves" not in self._cache:
+            from fnsi_lab.ident.spline import spline_curves
+            self._cache["spline_curves"] = spline_curves(basis, self.coefficient_spectra,
+                                                         values, self.data.motion)
+        return list(self._cache["spline_curves"])
 
     def suggested_config(self) -> tuple[dict, str] | None:
         """The config with each spline element replaced by its suggested parametric form,
@@ -626,9 +676,10 @@ class Identification:
         data = self.data
         exc = np.asarray(data.excited, bool)
         f = data.frequencies_hz[exc]
+        linear = self.nested.linear if self.nested is not None and self.linear_answer else None
         out: dict[str, Any] = {"frequency_hz": f, "outputs": list(data.output_names),
                                "inputs": list(data.input_names),
-                               "underlying_linear": (self.nested.linear.model if self.linear_answer
+                               "underlying_linear": (linear.model if linear is not None
                                                      else self.model).underlying_linear_frf(f)}
         if data.n_inputs == 1:
             u = data.E_physical[exc, 0][:, None, None]
@@ -660,22 +711,14 @@ class Identification:
         else:
             out.update(self._fixed_order_dict())
         out["order"] = self.order
-        out["modes"] = [dict(m, shape={"re": m["shape"].real, "im": m["shape"].imag})
-                        for m in self.modes]
-        out["coefficients"] = self.coefficients
+        out["modes"] = [m.to_json() for m in self.modes]
+        # kind: spline: the curve on the element's first coefficient (Coefficient.curve)
+        out["coefficients"] = [c.to_dict() for c in self.coefficients]
         cond = _conditioning(s) if s.config.nonlinearities else None
         if cond is not None:
             out["regressors"] = cond.to_dict()
         curves = self.spline_curves
-        if curves:   # kind: spline: the curve on the element's first coefficient
-            firsts = {nl.name: nl.coefficient_names[0] for nl in s.config.nonlinearities}
-            vel = {nl.name: next((n for n in nl.coefficient_names if ":v" in n), None)
-                   for nl in s.config.nonlinearities}
-            for c in curves:
-                key = firsts[c.element] if c.argument == "displacement" else vel[c.element]
-                for coef in out["coefficients"]:
-                    if coef["name"] == key:
-                        coef["curve"] = c.to_dict()
+        if curves:
             suggested = self.suggested_config() or ({}, "")
             out["suggestions"] = [{"element": c.element, "argument": c.argument,
                                    **c.suggestion} for c in curves]
@@ -716,6 +759,7 @@ class Identification:
 
     def _fixed_order_dict(self) -> dict:
         data, model, dec = self.data, self.model, self.decomposition
+        assert dec is not None, "a fixed-order identification holds its decomposition"
         y_hat = model.steady_state_output(data)
         rel = float(np.sum(np.abs(data.Y - y_hat) ** 2) / np.sum(np.abs(data.Y) ** 2))
         p = model.poles.modes()
@@ -816,9 +860,19 @@ def _spectra_json(spectra: CoefficientSpectra | None) -> dict | None:
             "exact": {n: t for n, t in zip(spectra.names, spectra.truth or ()) if t is not None}}
 
 
+class _Fit(NamedTuple):
+    """FNSI's answer before the refinement, the coefficients and the nested test: the first
+    fields of an :class:`Identification`."""
+
+    model: StateSpaceModel
+    method: str
+    auto: AutoResult | None = None
+    decomposition: SubspaceDecomposition | None = None
+
+
 def _fit(session: IdentSession, *, order: int | None, sweep: Sequence[int],
          reduce_at: int | None, max_order: int | None, block_rows: int | None,
-         progress: Any = None) -> "Identification":
+         progress: Any = None) -> _Fit:
     """FNSI at the fixed ``order``, or the robust pipeline over ``sweep``, on the session's data
     (no refinement, no coefficients yet)."""
     cfg = session.config
@@ -840,7 +894,7 @@ def _fit(session: IdentSession, *, order: int | None, sweep: Sequence[int],
             model = model_at_order(dec, session.data, int(order), d_zero=session.d_zero)
         session.timings_s["decomposition"] = time.perf_counter() - t1
         session.timings_s["model"] = time.perf_counter() - t1 - session.timings_s["decomposition"]
-        ident = Identification(session, model, "order", decomposition=dec)
+        return _Fit(model, "order", decomposition=dec)
     else:
         from fnsi_lab.ident.auto import identify_auto
 
@@ -859,8 +913,7 @@ def _fit(session: IdentSession, *, order: int | None, sweep: Sequence[int],
                             spread=spread)
         session.timings_s["auto"] = time.perf_counter() - t1
         session.warnings.extend(res.confidence.get("warnings", []))  # e.g. order at sweep end
-        ident = Identification(session, res.final_model, "auto", auto=res)
-    return ident
+        return _Fit(res.final_model, "auto", auto=res)
 
 
 def identify_input(inp: IdentInput, cfg: IdentConfig, *, order: int | None = None,
@@ -930,17 +983,17 @@ def identify_request(inp: IdentInput, request: IdentRequest, *,
     session = prepare_session(inp, cfg, search_order=search_order,
                               select_search_order=order is None and cfg.order is None,
                               progress=progress)
-    ident = _fit(session, order=order, sweep=sweep, reduce_at=reduce_at, max_order=max_order,
-                 block_rows=block_rows, progress=progress)
-    ident.output_error = _refine(session, ident)
-    if ident.output_error is not None:
-        ident.model = ident.output_error.model
+    fit = _fit(session, order=order, sweep=sweep, reduce_at=reduce_at, max_order=max_order,
+               block_rows=block_rows, progress=progress)
+    output_error = _refine(session, fit)
+    model = output_error.model if output_error is not None else fit.model
     t2 = time.perf_counter()
-    ident.coefficient_spectra = _coefficient_spectra(session, ident.model)
+    spectra = _coefficient_spectra(session, model)
     session.timings_s["coefficients"] = time.perf_counter() - t2
     compare = session.config.compare_linear
+    nested = None
     if session.config.nonlinearities and compare:
-        verdicts = [c.get("verdict") for c in ident.coefficients]
+        verdicts = [c.get("verdict") for c in _summaries(spectra, session)]
         if compare == "auto" and verdicts and all(v == "identified" for v in verdicts):
             # every coefficient determined: the test would only confirm it (chain, SmallSat,
             # Silverbox); it costs a second identification (docs/ident.md)
@@ -948,26 +1001,33 @@ def identify_request(inp: IdentInput, request: IdentRequest, *,
 
             session.evidence["nonlinear_vs_linear"] = {
                 "decision": "nonlinear", "test": None,
-                "residual_nonlinear": weighted_residual(ident.model, session.data),
+                "residual_nonlinear": weighted_residual(model, session.data),
                 "residual_linear": None, "statistic": None, "p_value": None,
                 "statement": "every coefficient is identified: the linear fit was not run "
                              "(compare_linear: true runs it)"}
         else:
             t3 = time.perf_counter()
-            ident.nested = _compare_with_linear(session, ident, order=order, sweep=sweep,
-                                                reduce_at=reduce_at, max_order=max_order,
-                                                block_rows=block_rows)
+            answer = _Fit(model, fit.method, fit.auto, fit.decomposition)
+            nested = _compare_with_linear(
+                session, model, answer_modes(answer, output_error),
+                [c["verdict"] for c in _summaries(spectra, session)], order=order,
+                sweep=sweep, reduce_at=reduce_at, max_order=max_order, block_rows=block_rows)
             session.timings_s["linear_fit"] = time.perf_counter() - t3
     session.timings_s["total"] = time.perf_counter() - t0
-    return ident
+    # built once, with everything it holds (docs/architecture.md, "The result")
+    return Identification(session, model, fit.method, auto=fit.auto,
+                          decomposition=fit.decomposition, output_error=output_error,
+                          coefficient_spectra=spectra, nested=nested)
 
 
-def _compare_with_linear(session: IdentSession, ident: "Identification", *,
-                         order: int | None, sweep: Sequence[int], reduce_at: int | None,
-                         max_order: int | None, block_rows: int | None) -> Any:
+def _compare_with_linear(session: IdentSession, model: StateSpaceModel, modes: Sequence[Mode],
+                         verdicts: Sequence[str], *, order: int | None, sweep: Sequence[int],
+                         reduce_at: int | None, max_order: int | None,
+                         block_rows: int | None) -> NestedTest | None:
     """The linear fit of the same data (same orders, weighting, ``D`` choice, basis removed)
-    and the nested test of the answer against it (:mod:`ident.nested`); None when the linear
-    fit fails (its reason goes to the warnings)."""
+    and the nested test of the answer (``model``, its physical ``modes`` and coefficient
+    ``verdicts``) against it (:mod:`ident.nested`); None when the linear fit fails (its
+    reason goes to the warnings)."""
     from fnsi_lab.ident.nested import nested_test
 
     cfg = replace(session.config, nonlinearities=())
@@ -975,25 +1035,25 @@ def _compare_with_linear(session: IdentSession, ident: "Identification", *,
                              timings_s={}, warnings=[], evidence={}, cache={},
                              parameter_search=None)
     try:
-        linear = _fit(linear_session, order=order, sweep=sweep, reduce_at=reduce_at,
-                      max_order=max_order,
-                      block_rows=None if block_rows is None else block_rows)
+        linear_fit = _fit(linear_session, order=order, sweep=sweep, reduce_at=reduce_at,
+                          max_order=max_order,
+                          block_rows=None if block_rows is None else block_rows)
     except (IdentError, ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
         session.warnings.append(f"no linear fit to compare the nonlinear terms with ({exc})")
         return None
+    linear = Identification(linear_session, *linear_fit)
     halves = _split_periods(session)
     if halves is not None:   # the basis read on other periods than the outputs it explains
         data_nl, data_lin, how = (*halves, "basis columns from the odd periods, outputs and "
                                   "forces from the even ones")
     else:
         data_nl, data_lin, how = session.data, linear.data, "every period"
-    test = nested_test(ident.model, data_nl, linear.model, data_lin,
+    test = nested_test(model, data_nl, linear.model, data_lin,
                        d_zero=session.d_zero,
-                       modes_nl=[m["frequency_hz"] for m in ident.modes],
-                       modes_lin=[m["frequency_hz"] for m in linear.modes])
+                       modes_nl=[m.frequency_hz for m in modes],
+                       modes_lin=[m.frequency_hz for m in linear.modes])
     test.linear, test.evaluation = linear, how
-    test.require_coefficients([c["verdict"] for c in _summaries(ident.coefficient_spectra,
-                                                                   session)])
+    test.require_coefficients(verdicts)
     return test
 
 
