@@ -25,8 +25,9 @@ def _validate(args: argparse.Namespace) -> int:
     from fnsi_lab.outputs import atomic_output, check_output_path, write_json
 
     for path, option in ((args.json_out, "--json"), (args.svg, "--svg")):
-        if path:
-            check_output_path(path, force=args.force, option=option)
+        if path is not None and path != "-":  # '' is refused there, not ignored
+            check_output_path(path, force=args.force, option=option,
+                              inputs=[args.result, args.record])
     if not args.quiet:
         print(f"validating {args.result} on {args.record} ...", file=sys.stderr)
     v = validate_model(args.result, args.record, method=args.method,

@@ -109,11 +109,14 @@ def run_analyse(args: argparse.Namespace) -> int:
     from fnsi_lab.outputs import check_output_path, write_json
 
     if args.json_out not in (None, "-"):
-        check_output_path(args.json_out, force=args.force, option="--json")
+        check_output_path(args.json_out, force=args.force, option="--json",
+                          inputs=[*args.inputs, args.config])
     if args.rrd is not None:
-        check_output_path(args.rrd, force=args.force, option="--rrd")
+        check_output_path(args.rrd, force=args.force, option="--rrd",
+                          inputs=[*args.inputs, args.config, args.json_out])
     if args.report is not None:
-        check_output_path(args.report, force=args.force, option="--report")
+        check_output_path(args.report, force=args.force, option="--report",
+                          inputs=[*args.inputs, args.config, args.json_out, args.rrd])
     if not 0 < args.alpha < 1:
         from fnsi_lab.errors import ConfigError
         raise ConfigError(f"--alpha {args.alpha} is not a probability", field="--alpha",

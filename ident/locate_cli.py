@@ -99,7 +99,8 @@ def run_locate(args: argparse.Namespace) -> int:
     from fnsi_lab.outputs import check_output_path, write_json
 
     if args.json_out not in (None, "-"):
-        check_output_path(args.json_out, force=args.force, option="--json")
+        check_output_path(args.json_out, force=args.force, option="--json",
+                          inputs=[args.input, args.config])
     limit_blas_threads(1)
     show = not args.quiet and args.json_out != "-"
     progress = (lambda note: print(f"  {note}", file=sys.stderr)) if show else None

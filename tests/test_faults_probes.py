@@ -230,7 +230,10 @@ def test_an_output_that_is_an_input_is_refused_even_with_force(tmp_path, write_r
                  ["replay", str(src), "--rrd", str(src), "--force", "--method", "frf"],
                  ["report", str(src), "--out", str(src), "--force"],
                  ["run", "--config", str(config), "--out", str(tmp_path / "r.mcap"), "--rrd",
-                  str(tmp_path / "r.mcap"), "--force"]):
+                  str(tmp_path / "r.mcap"), "--force"],
+                 ["analyse", str(src), "--json", str(src), "--force"],
+                 ["locate", str(src), "--json", str(src), "--force"],
+                 ["validate", str(config), str(src), "--json", str(config), "--force"]):
         assert main(argv) == 2, argv
         assert "is also an input of this command" in _one_line_error(capsys.readouterr().err)
     assert config.read_text() == text and src.read_bytes() == recording
