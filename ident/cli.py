@@ -328,6 +328,12 @@ def run_ident(args: argparse.Namespace) -> int:
 def _print_curves(res: dict, out=None) -> None:
     """``kind: spline`` results: each curve in a few numbers and the suggested config."""
     out = out or sys.stdout
+    loc = res.get("localisation")
+    if loc and loc.get("candidates"):   # nonlinearities: auto
+        best = loc["candidates"][0]
+        print(f"nonlinearities: auto: located {best['name']} ({best['verdict']}, score "
+              f"{best['score']:.3g}, -log10 p {best['significance']:.1f}; "
+              f"{len(loc['candidates'])} candidates: the JSON's localisation)", file=out)
     curves = [c["curve"] for c in res.get("coefficients", []) if c.get("curve")]
     if not curves:
         return

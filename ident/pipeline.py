@@ -164,7 +164,8 @@ def prepare_session(inp: IdentInput, cfg: IdentConfig, *, search_order: int | No
                              "the candidates); identify a linear model without "
                              "nonlinearities, or list the element")
         cfg = replace(cfg, nonlinearities_auto=False, nonlinearities=(Nonlinearity(
-            name="auto", kind="spline", channels=best.channels, knot_count=AUTO_KNOTS),))
+            name=best.name.replace(" - ", "/"), kind="spline", channels=best.channels,
+            knot_count=AUTO_KNOTS),))
     inp = select_channels(inp, outputs=cfg.outputs, inputs=[i.name for i in cfg.inputs] or None)
     cfg, truth_notes = apply_recording_truth(cfg, inp.truth)
     nyquist = inp.sample_rate_hz / 2
