@@ -94,7 +94,8 @@ def _recorded_driving_point(source: Any) -> str | None:
 def identify(source: Any, config: Any = None, *, order: int | None = None,
              orders: Any = None, reduce_at: int | None = None, max_order: int | None = None,
              block_rows: int | None = None, progress: Any = False,
-             samples_per_period: int | None = None) -> "Identification":
+             samples_per_period: int | None = None,
+             blas_threads: int | None = 1) -> "Identification":
     """Identify the underlying linear modes and nonlinear coefficients of a structure.
 
     Parameters
@@ -125,6 +126,12 @@ def identify(source: Any, config: Any = None, *, order: int | None = None,
         Progress bar over the order sweep on stderr.
     samples_per_period : int, optional
         ``N`` when the file does not say (else the config's).
+    blas_threads : int or None, optional
+        OpenBLAS threads during the identification (default 1; the process's own count is
+        restored afterwards; None: leave it as it is). The many small solves of the order
+        sweep gain nothing from threads, and threads oversubscribe a small machine: the
+        README example took 23 s with the default OpenBLAS threads and 1.3 s with one, on
+        a loaded 2-core machine. The answer does not depend on it (docs/method.md §1.3).
 
     Returns
     -------
@@ -157,8 +164,9 @@ def identify(source: Any, config: Any = None, *, order: int | None = None,
     import time
 
     from fnsi_lab.arguments import check_order_options
+    from fnsi_lab.blas import limit_blas_threads, restored_blas_threads
     from fnsi_lab.ident.pipeline import identify_request
-    from fnsi_lab.ident.request import resolve_request
+    from fnsi_lab.ident.request import check_order, resolve_request
 
     # the order rules of the command line, before anything is read
     check_order_options(order=order, max_order=max_order, block_rows=block_rows,
@@ -171,7 +179,10 @@ def identify(source: Any, config: Any = None, *, order: int | None = None,
                               driving_point=(_recorded_driving_point(source) if cfg is None
                                              else None))
     load_s = time.perf_counter() - t0
-    result = identify_request(inp, request, progress=progress)
+    with restored_blas_threads():
+        if blas_threads is not None:
+            limit_blas_threads(check_order(blas_threads, "blas_threads"))
+        result = identify_request(inp, request, progress=progress)
     result.session.timings_s["load"] = load_s
     result.session.timings_s["total"] += load_s
     return result

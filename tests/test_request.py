@@ -46,3 +46,27 @@ def test_the_sweep_comes_from_the_caller_then_the_config_then_the_default():
     with pytest.raises(Exception):                      # frozen: resolved once, never patched
         req.order = 6  # type: ignore[misc]
     assert check_order(np.int64(7)) == 7
+
+
+def test_the_api_runs_with_one_blas_thread_and_gives_the_process_its_count_back():
+    """fnsi_lab.identify limits OpenBLAS to one thread for its own work (the README example:
+    23 s with the default threads, 1.3 s with one, on a loaded 2-core machine) and restores
+    the caller's count afterwards."""
+    from fnsi_lab.blas import blas_threads, limit_blas_threads, restored_blas_threads
+    seen = []
+    import fnsi_lab.ident.pipeline as pipeline
+    original = pipeline.identify_request
+
+    def spy(*args, **kwargs):
+        seen.append(blas_threads())
+        return original(*args, **kwargs)
+
+    with restored_blas_threads():
+        if limit_blas_threads(2) is None:
+            pytest.skip("no OpenBLAS library to count threads of")
+        pipeline.identify_request = spy
+        try:
+            fnsi_lab.identify(_arrays(), {"band_hz": [2, 40]}, order=2)
+        finally:
+            pipeline.identify_request = original
+        assert seen == [1] and blas_threads() == 2
