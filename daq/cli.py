@@ -6,6 +6,7 @@ import argparse
 import sys
 from typing import Any
 
+from fnsi_lab.arguments import INPUT
 from fnsi_lab.progress import Progress, announce_simulator_compile
 
 
@@ -168,7 +169,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                "  fnsi-lab acquire --config lumped.yaml              # packaged small model\n"
                "  fnsi-lab acquire --config sweep.yaml --out campaign/  # excitation.levels: one file per level\n"
                "  fnsi-lab acquire --config aircraft --level 98      # aircraft-like GVT at 98 N RMS\n")
-    p.add_argument("--config", metavar="FILE.yaml", help="experiment YAML (default: packaged smallsat.yaml)")
+    p.add_argument("--config", type=INPUT, metavar="FILE.yaml", help="experiment YAML (default: packaged smallsat.yaml)")
     p.add_argument("--out", metavar="FILE.mcap", help="output file (default: the config's 'output')")
     p.add_argument("--realtime", action="store_true",
                    help="pace a simulated source at wall-clock speed, as hardware would deliver it")
@@ -186,7 +187,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Print the channels, duration, periods, excitation, metadata and (for "
                     "simulated structures) the truth of an fnsi-lab recording.",
         epilog="examples:\n  fnsi-lab info smallsat.mcap\n  fnsi-lab info smallsat.mcap --json | jq .truth.modes\n")
-    p.add_argument("file", metavar="FILE.mcap")
+    p.add_argument("file", type=INPUT, metavar="FILE.mcap")
     p.add_argument("--json", action="store_true",
                    help="one JSON object (channels, duration_s, sample_rate_hz, samples_per_period, "
                         "periods, messages, excitation, truth...)")
@@ -204,7 +205,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "written then).",
         epilog="examples:\n  fnsi-lab recover crashed.mcap crashed.recovered.mcap\n"
                "  fnsi-lab recover damaged.mcap fixed.mcap --force   # replace fixed.mcap\n")
-    p.add_argument("broken", metavar="BROKEN.mcap")
+    p.add_argument("broken", type=INPUT, metavar="BROKEN.mcap")
     p.add_argument("out", metavar="OUT.mcap")
     p.add_argument("--force", action="store_true", help="replace OUT.mcap if it exists")
     p.set_defaults(handler=_recover)

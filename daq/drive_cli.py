@@ -59,7 +59,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                "  fnsi-lab excitation --config rig.yaml --out drive.tdms --periods 100\n"
                "  fnsi-lab excitation --out drive.wav --wav-encoding pcm24 --full-scale 5\n"
                "  fnsi-lab excitation --out drive.csv        # newtons, time_s,drive_N\n")
-    p.add_argument("--config", metavar="EXP.yaml",
+    p.add_argument("--config", type=opt.INPUT, metavar="EXP.yaml",
                    help="experiment YAML (default: packaged smallsat.yaml)")
     p.add_argument("--out", required=True, metavar="DRIVE.{wav,csv,npy,tdms}",
                    help="drive file; its format follows the extension; DRIVE.json is written "

@@ -28,7 +28,7 @@ __all__ = ["whole", "real", "check_order", "check_orders", "check_order_options"
            "SAMPLES_PER_PERIOD", "TRANSIENT_PERIODS", "STEADY_TOLERANCE", "DECIMATION",
            "WEB_WAIT", "SPEED", "FOLLOW_TIMEOUT", "QUEUE_BLOCKS", "WORKERS",
            "RELATIVE_SPREAD", "CONTACT_FRACTION", "SAMPLE_RATE", "PERIODS", "POSITIVE_SCALE",
-           "ORDERS", "CONNECT_URL"]
+           "ORDERS", "CONNECT_URL", "INPUT"]
 
 
 def whole(minimum: int, fix: str, *, name: str) -> Callable[[str], int]:
@@ -164,6 +164,15 @@ def _connect_url(text: str) -> str:
     return str(text).strip()
 
 
+def _input_name(text: str) -> str:
+    """An input file or config name: not empty (``''`` would name the current folder)."""
+    if not str(text).strip():
+        raise argparse.ArgumentTypeError("is empty (fix: give a file name)")
+    return text
+
+
+#: Input files and configs of every command (``ident ''`` read the current folder).
+INPUT = _input_name
 #: Model orders (``ident --order``, ``--reduce-at``, ``batch --order``).
 ORDER = _order_type("--order")
 MAX_ORDER = _order_type("--max-order")

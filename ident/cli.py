@@ -36,8 +36,8 @@ with their uncertainty and the model error against them (docs/ident.md).
 
 def add_ident_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the ``ident`` options to ``parser``."""
-    parser.add_argument("input", metavar="INPUT", help="recording (.mcap) or array file (.npz, .mat)")
-    parser.add_argument("--config", default=None, metavar="IDENT.yaml",
+    parser.add_argument("input", type=opt.INPUT, metavar="INPUT", help="recording (.mcap) or array file (.npz, .mat)")
+    parser.add_argument("--config", type=opt.INPUT, default=None, metavar="IDENT.yaml",
                         help="ident configuration (band, channels, nonlinearities; docs/ident.md); "
                              "a bare name such as smallsat39 picks a packaged example")
     parser.add_argument("--order", type=opt.ORDER, default=None, metavar="N",

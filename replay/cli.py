@@ -489,7 +489,7 @@ def _common(p: argparse.ArgumentParser, harmonics: float = 1.0) -> None:
     from fnsi_lab.viewer.cli import add_viewer_arguments
 
     g = p.add_argument_group("identification")
-    g.add_argument("--ident", metavar="IDENT.yaml",
+    g.add_argument("--ident", type=opt.INPUT, metavar="IDENT.yaml",
                    help="identification config (basis functions, band, options)")
     g.add_argument("--orders", type=opt.ORDERS, default=None, metavar="FIRST:LAST",
                    help=f"model orders of the sweep: FIRST:LAST, FIRST:LAST:STEP or a list "
@@ -522,7 +522,7 @@ def _common(p: argparse.ArgumentParser, harmonics: float = 1.0) -> None:
 
 def _experiment_arguments(p: argparse.ArgumentParser) -> None:
     """``--config`` and ``--out`` of the commands that run an experiment (run, live)."""
-    p.add_argument("--config", metavar="EXP.yaml",
+    p.add_argument("--config", type=opt.INPUT, metavar="EXP.yaml",
                    help="experiment YAML (default: the packaged simulated SmallSat)")
     p.add_argument("--out", metavar="FILE.mcap", help="recording (default: the config's output)")
     p.add_argument("--force", action="store_true",
@@ -593,7 +593,7 @@ def register(subparsers: Any) -> None:
                "  fnsi-lab replay smallsat.mcap --rrd replay.rrd\n"
                "  fnsi-lab replay smallsat.mcap --speed 10 --spawn\n"
                "  fnsi-lab replay growing.mcap --follow --connect   # a viewer already runs\n")
-    p.add_argument("file", metavar="FILE.mcap")
+    p.add_argument("file", type=opt.INPUT, metavar="FILE.mcap")
     p.add_argument("--speed", type=opt.SPEED, metavar="X",
                    help="recorded seconds per wall second (default: as fast as possible)")
     p.add_argument("--follow", action="store_true", help="follow a file still being written")

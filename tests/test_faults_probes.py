@@ -553,3 +553,16 @@ def test_a_pace_of_zero_names_the_option_and_the_fix():
         make_source(load_experiment(str(Path(__file__).parents[1] / "daq" / "data" /
                                         "lumped.yaml")), pace=0)
     assert "--speed" in str(exc.value) and "fix:" in str(exc.value)
+
+
+@pytest.mark.parametrize("argv", [
+    ["replay", ""], ["info", ""], ["ident", "", "--order", "4"], ["recover", "", "o.mcap"],
+    ["acquire", "--config", ""], ["report", ""], ["export", "", "--uff", "o.uff"],
+    ["import", "", "--out", "o.mcap"], ["campaign", ""], ["view", ""],
+    ["batch", "", "--config", "lumped-cubic", "--auto", "--out", "c.parquet"]])
+def test_an_empty_input_name_is_refused(argv, tmp_path, capsys, monkeypatch):
+    """`replay ''` ended in a ValueError traceback; `ident ''` read the current folder."""
+    monkeypatch.chdir(tmp_path)
+    line = _refused_by_argparse(argv, capsys)
+    assert "is empty (fix: give a file name)" in line
+    assert list(tmp_path.iterdir()) == []

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from fnsi_lab.arguments import CONNECT_URL
+from fnsi_lab.arguments import CONNECT_URL, INPUT
 from fnsi_lab.errors import DataFileError, FnsiLabError
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -479,7 +479,7 @@ def register(subparsers: Any) -> None:
                "  fnsi-lab view run.rrd --spawn         # the native viewer\n"
                "  fnsi-lab view run.rrd --serve-web     # http://127.0.0.1:9090 in a browser\n",
         formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("file", metavar="FILE.rrd", help="a recording saved with --rrd")
+    p.add_argument("file", type=INPUT, metavar="FILE.rrd", help="a recording saved with --rrd")
     p.add_argument("--list", action="store_true",
                    help="print the entities and the identification summary, open nothing")
     p.add_argument("--spawn", action="store_true", help="open it in the native Rerun viewer")

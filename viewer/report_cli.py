@@ -169,12 +169,12 @@ def register(subparsers: Any) -> None:
                "  fnsi-lab report smallsat.mcap                   # identify, then smallsat.html\n"
                "  fnsi-lab report run.mcap --config rig.yaml --orders 2:40 --out run.html\n",
         formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("source", metavar="RESULT.json|REC.mcap",
+    p.add_argument("source", type=opt.INPUT, metavar="RESULT.json|REC.mcap",
                    help="identification result (fnsi-lab ident --json) or a recording")
     p.add_argument("--out", metavar="REPORT.html",
                    help="output file (default: the source with .html)")
     p.add_argument("--force", action="store_true", help="overwrite an existing output file")
-    p.add_argument("--config", metavar="IDENT.yaml",
+    p.add_argument("--config", type=opt.INPUT, metavar="IDENT.yaml",
                    help="with a recording: identification config (default: the recording's "
                         "excited band and, for simulations, its truth's basis functions)")
     p.add_argument("--orders", type=opt.ORDERS, metavar="FIRST:LAST",

@@ -34,7 +34,7 @@ def register(subparsers) -> None:
                     "that info, ident and replay read like an acquisition; its metadata "
                     "records the source file (path, format, SHA-256) and the options.",
         epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("file", metavar="FILE", help=".tdms, .uff/.unv, .csv/.txt/.tsv")
+    p.add_argument("file", type=opt.INPUT, metavar="FILE", help=".tdms, .uff/.unv, .csv/.txt/.tsv")
     p.add_argument("--out", required=True, metavar="REC.mcap", help="recording to write")
     p.add_argument("--inputs", nargs="+", default=None, metavar="NAME",
                    help="input (force) channels; default: the channels the file marks as "

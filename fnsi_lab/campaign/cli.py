@@ -145,9 +145,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "status, worker, order, n_modes, force_rms, each coefficient and its "
                     "spread). Resumable; one failing input never stops the others.",
         epilog=BATCH_EXAMPLES)
-    p.add_argument("inputs", nargs="+", metavar="INPUT",
+    p.add_argument("inputs", type=opt.INPUT, nargs="+", metavar="INPUT",
                    help="recording, array file, folder or quoted glob pattern")
-    p.add_argument("--config", required=True, metavar="IDENT.yaml",
+    p.add_argument("--config", type=opt.INPUT, required=True, metavar="IDENT.yaml",
                    help="ident configuration, or a packaged name such as smallsat39")
     how = p.add_mutually_exclusive_group()
     how.add_argument("--auto", action="store_true",
@@ -183,7 +183,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "is not identifiable at a level (stop never in contact, or too large a "
                     "spread).",
         epilog=CAMPAIGN_EXAMPLES)
-    p.add_argument("table", metavar="CAMPAIGN.parquet")
+    p.add_argument("table", type=opt.INPUT, metavar="CAMPAIGN.parquet")
     p.add_argument("--rrd", metavar="FILE.rrd", help="Rerun recording of the comparison")
     p.add_argument("--html", metavar="FILE.html",
                    help="the comparison as one offline HTML page (figures inline, as "

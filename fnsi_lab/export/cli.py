@@ -6,6 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from fnsi_lab.arguments import INPUT
 from fnsi_lab.errors import ConfigError, DataFileError
 from fnsi_lab.export.dofs import (assign_dofs, channel_table_mapping, parse_mapping,
                                   read_mapping_file)
@@ -38,7 +39,7 @@ def register(subparsers) -> None:
                     "dataset 58) and CSV tables (modes, shapes, coefficients, coefficient "
                     "spectra) of a result written by `fnsi-lab ident --json`.",
         epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("result", metavar="RESULT.json", help="result of fnsi-lab ident --json")
+    p.add_argument("result", type=INPUT, metavar="RESULT.json", help="result of fnsi-lab ident --json")
     p.add_argument("--uff", default=None, metavar="OUT.uff", help="UFF file to write")
     p.add_argument("--csv", default=None, metavar="DIR",
                    help=f"folder for the CSV tables ({', '.join(CSV_FILES)}); created if "
