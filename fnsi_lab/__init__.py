@@ -20,7 +20,7 @@ from typing import Any
 __version__ = "0.1.0"
 
 __all__ = ["identify", "analyse", "locate", "open_recording", "acquire", "load_config", "Identification",
-           "validate_model", "__version__"]
+           "Mode", "Coefficient", "validate_model", "__version__"]
 
 
 def __getattr__(name: str) -> Any:
@@ -29,6 +29,10 @@ def __getattr__(name: str) -> Any:
         from fnsi_lab import api
 
         return getattr(api, name)
+    if name in ("Mode", "Coefficient"):   # the answer's records (docs/api.md, "The result")
+        from fnsi_lab.ident import result
+
+        return getattr(result, name)
     if name == "validate_model":   # fnsi_lab.validate is the YAML helper module
         from fnsi_lab.model_validation import validate_model
 

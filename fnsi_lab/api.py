@@ -182,10 +182,7 @@ def identify(source: Any, config: Any = None, *, order: int | None = None,
     with restored_blas_threads():
         if blas_threads is not None:
             limit_blas_threads(check_order(blas_threads, "blas_threads"))
-        result = identify_request(inp, request, progress=progress)
-    result.session.timings_s["load"] = load_s
-    result.session.timings_s["total"] += load_s
-    return result
+        return identify_request(inp, request, progress=progress, spent_s={"load": load_s})
 
 
 def analyse(sources: Any, config: Any = None, *, band_hz: Any = None, alpha: float = 0.01,

@@ -26,6 +26,8 @@ Modules
 ``basis``         nonlinear basis functions and extended input
 ``fnsi``          one QR + one SVD, every order; B/D least squares; CT conversion; FRFs
 ``coefficients``  nonlinear coefficients by signed reciprocity (docs/method.md §2.3)
+``pipeline``      the entry point and its frozen answer :class:`Identification`
+                  (``result``: the answer's :class:`Mode` and :class:`Coefficient` records)
 ``output_error``  the answer refined on the model's own periodic steady state
                   (``harmonic_balance``: that steady state; ``modal``: the model's parameters)
 ``config``, ``io``, ``cli``  the ``fnsi-lab ident`` command

@@ -958,8 +958,8 @@ def identify_input(inp: IdentInput, cfg: IdentConfig, *, order: int | None = Non
     return identify_request(inp, request, progress=progress)
 
 
-def identify_request(inp: IdentInput, request: IdentRequest, *,
-                     progress: Any = None) -> Identification:
+def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = None,
+                     spent_s: Mapping[str, float] | None = None) -> Identification:
     """Identify with resolved settings (:func:`ident.request.resolve_request`).
 
     Parameters
@@ -970,10 +970,14 @@ def identify_request(inp: IdentInput, request: IdentRequest, *,
         The configuration, the fixed order or the sweep, and the decomposition's sizes.
     progress : bool or fnsi_lab.progress.Progress, optional
         Progress bar over the orders of the sweep.
+    spent_s : mapping, optional
+        Seconds spent before, per stage (``{"load": 0.4}``: reading the file), added to the
+        result's timings and total.
 
     Returns
     -------
     Identification
+        Frozen, built once with everything it holds.
     """
     t0 = time.perf_counter()
     cfg, order, sweep = request.config, request.order, list(request.orders)
@@ -1015,6 +1019,9 @@ def identify_request(inp: IdentInput, request: IdentRequest, *,
                 sweep=sweep, reduce_at=reduce_at, max_order=max_order, block_rows=block_rows)
             session.timings_s["linear_fit"] = time.perf_counter() - t3
     session.timings_s["total"] = time.perf_counter() - t0
+    for stage, seconds in (spent_s or {}).items():
+        session.timings_s[stage] = seconds
+        session.timings_s["total"] += seconds
     # built once, with everything it holds (docs/architecture.md, "The result")
     return Identification(session, model, fit.method, auto=fit.auto,
                           decomposition=fit.decomposition, output_error=output_error,
