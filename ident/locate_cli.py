@@ -23,7 +23,7 @@ direction (names ending -X, _Y, :+Z...; every pair when the names carry none): '
 Every candidate gets a generic restoring force (stop-like and polynomial terms in the
 relative displacement, damping and friction terms in the relative velocity); a screen ranks
 them all by how much of the linear model's residual it explains, then the best few are
-re-ranked by a full FNSI with a fine spline at each. The config's nonlinearities are not
+re-ranked by a full FNSI with those columns at each (--knots adds a spline). The config's nonlinearities are not
 used (they are the question); its band, inputs, outputs and order are.
 """
 
@@ -49,8 +49,9 @@ def register(subparsers) -> None:
                    help="linear model order (default: the config's, else chosen by the "
                         "minimum-description-length criterion)")
     p.add_argument("--refine", type=int, default=loc.REFINE_TOP, metavar="K",
-                   help=f"re-rank the screen's best K by FNSI with a spline at each "
-                        f"(default {loc.REFINE_TOP}; 0: the screen alone)")
+                   help=f"re-rank the screen's best K by a full FNSI with the generic "
+                        f"columns at each (default {loc.REFINE_TOP}; 0: the screen alone, a "
+                        "filter rather than a verdict)")
     p.add_argument("--knots", type=int, default=loc.REFINE_KNOTS, metavar="K",
                    help=f"spline knots added to the refinement's generic columns (default "
                         f"{loc.REFINE_KNOTS}: none; 24 tells nearly equal motions apart better "
