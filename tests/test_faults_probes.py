@@ -142,6 +142,9 @@ def test_a_third_party_file_without_crcs_reads_with_a_note(multi_chunk, tmp_path
     assert got == [b.data.tobytes() for b in blocks]
     assert main(["info", str(other)]) == 0
     assert "note: written by other-daq 2.1 without CRCs" in capsys.readouterr().out
+    import fnsi_lab  # the identification carries the note among its warnings
+    warnings = fnsi_lab.identify(other, {"band_hz": [5, 50]}, order=4).to_json()["warnings"]
+    assert any("without CRCs" in w for w in warnings), warnings
     report = recover(other, tmp_path / "other.recovered.mcap")
     assert report.unchecked_chunks == len(_chunks(other.read_bytes())) and not report.damaged
     assert "carry no CRC" in report.summary()
