@@ -30,12 +30,15 @@ lower, and no p-value is given.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
 from fnsi_lab.ident.fnsi import StateSpaceModel
 from fnsi_lab.ident.periodic import FrequencyData, smooth_lines
+
+if TYPE_CHECKING:   # the pipeline imports this module
+    from fnsi_lab.ident.pipeline import Identification
 
 __all__ = ["SIGNIFICANCE", "MODE_MATCH", "NestedTest", "weighted_residual", "parameter_count",
            "nested_test", "match_modes"]
@@ -140,7 +143,7 @@ class NestedTest:
     weighting: str
     significance: float = SIGNIFICANCE
     modes: dict = field(default_factory=dict)
-    linear: Any = None
+    linear: Identification | None = None
     evaluation: str = "every period"
     undetermined: bool = False
 

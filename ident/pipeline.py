@@ -37,8 +37,8 @@ from fnsi_lab.ident.model_json import processing_json, state_space_json
 from fnsi_lab.ident.nested import NestedTest
 from fnsi_lab.ident.output_error import (MAX_MISFIT, OutputErrorFit, omitted_mode_evidence,
                                         refine_output_error, refinement_case)
-from fnsi_lab.ident.parameter_search import (DEFAULT_SEARCH_ORDER, estimate_basis_parameters,
-                                             has_unknown_parameters)
+from fnsi_lab.ident.parameter_search import (DEFAULT_SEARCH_ORDER, ParameterSearchResult,
+                                             estimate_basis_parameters, has_unknown_parameters)
 from fnsi_lab.ident.periodic import FrequencyData, data_report, prepare_frequency_data, with_basis
 from fnsi_lab.ident.reduction import reduce_model
 from fnsi_lab.ident.regressors import regressor_conditioning
@@ -92,7 +92,7 @@ class IdentSession:
     timings_s: dict = field(default_factory=dict)
     warnings: list = field(default_factory=list)
     evidence: dict = field(default_factory=dict)
-    parameter_search: Any = None
+    parameter_search: ParameterSearchResult | None = None
     cache: dict = field(default_factory=dict, repr=False)
 
 
@@ -730,9 +730,10 @@ class Identification:
         if self.output_error is not None:   # with the decision (session.evidence) below
             out["output_error"] = self.output_error.to_dict()
         if self.nested is not None:   # with the linear fit itself (fnsi-lab validate can use it)
+            linear = self.nested.linear
             out["nonlinear_vs_linear"] = dict(
-                self.nested.to_dict(),
-                linear_state_space=state_space_json(self.nested.linear.model))
+                self.nested.to_dict(), linear_state_space=(
+                    state_space_json(linear.model) if linear is not None else None))
         if s.parameter_search is not None:
             out["parameter_search"] = {k: v for k, v in s.parameter_search.to_dict().items()
                                        if k != "estimates"}
