@@ -29,7 +29,7 @@ lower, and no p-value is given.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
@@ -100,9 +100,10 @@ def match_modes(linear: Sequence[float], nonlinear: Sequence[float],
     return {"kept": kept, "lost": lost, "added": sorted(float(nonlinear[i]) for i in free)}
 
 
-@dataclass
+@dataclass(frozen=True)
 class NestedTest:
-    """The comparison of the nonlinear answer with the linear fit on the same data.
+    """The comparison of the nonlinear answer with the linear fit on the same data (frozen:
+    built once by :func:`nested_test`).
 
     Attributes
     ----------
@@ -123,7 +124,7 @@ class NestedTest:
     weighting : str
     significance : float
     linear : Identification or None
-        The linear fit itself (set by the pipeline).
+        The linear fit itself (given by the pipeline).
     evaluation : str
         Which data the residuals were computed on.
     undetermined : bool
@@ -152,13 +153,14 @@ class NestedTest:
         """The data support the nonlinear terms."""
         return self.decision == "nonlinear"
 
-    def require_coefficients(self, verdicts: Sequence[str]) -> None:
-        """Keep ``nonlinear`` only if some coefficient is determined by the data (a verdict
-        other than ``not identifiable``): a significant residual drop whose coefficients
-        mean nothing gives no usable nonlinear model, so the answer stays the linear fit's."""
-        self.undetermined = bool(verdicts) and all(v == "not identifiable" for v in verdicts)
-        if self.undetermined and self.decision == "nonlinear":
-            self.decision = "linear"
+    def require_coefficients(self, verdicts: Sequence[str]) -> NestedTest:
+        """The test that keeps ``nonlinear`` only if some coefficient is determined by the
+        data (a verdict other than ``not identifiable``): a significant residual drop whose
+        coefficients mean nothing gives no usable nonlinear model, so the answer stays the
+        linear fit's. Returns a new test."""
+        undetermined = bool(verdicts) and all(v == "not identifiable" for v in verdicts)
+        return replace(self, undetermined=undetermined,
+                       decision="linear" if undetermined else self.decision)
 
     @property
     def statement(self) -> str:
@@ -209,7 +211,9 @@ class NestedTest:
 def nested_test(model_nl: StateSpaceModel, data_nl: FrequencyData,
                 model_lin: StateSpaceModel, data_lin: FrequencyData, *, d_zero: bool,
                 modes_nl: Sequence[float] = (), modes_lin: Sequence[float] = (),
-                significance: float = SIGNIFICANCE) -> NestedTest:
+                significance: float = SIGNIFICANCE, verdicts: Sequence[str] = (),
+                linear: Identification | None = None,
+                evaluation: str = "every period") -> NestedTest:
     """Test the nonlinear model against the linear one on the same lines.
 
     Parameters
@@ -221,6 +225,13 @@ def nested_test(model_nl: StateSpaceModel, data_nl: FrequencyData,
     modes_nl, modes_lin : sequence of float
         The physical modes' natural frequencies (Hz) of the two answers.
     significance : float
+    verdicts : sequence of str
+        The nonlinear answer's coefficient verdicts (:meth:`NestedTest.require_coefficients`:
+        all ``not identifiable`` keeps the linear fit's answer).
+    linear : Identification, optional
+        The linear fit itself, kept in the test.
+    evaluation : str
+        Which data the residuals are computed on (words, for the JSON).
 
     Returns
     -------
@@ -240,9 +251,11 @@ def nested_test(model_nl: StateSpaceModel, data_nl: FrequencyData,
         supported = p < significance
     else:
         supported = v_nl < v_lin
+    undetermined = bool(verdicts) and all(v == "not identifiable" for v in verdicts)
     return NestedTest(residual_nonlinear=v_nl, residual_linear=v_lin, parameters_nonlinear=k_nl,
                       parameters_linear=k_lin, n_observations=n_obs, statistic=stat, p_value=p,
-                      decision="nonlinear" if supported else "linear",
+                      decision="nonlinear" if supported and not undetermined else "linear",
                       order_nonlinear=int(model_nl.order), order_linear=int(model_lin.order),
                       weighting=how, significance=significance,
-                      modes=match_modes(list(modes_lin), list(modes_nl)))
+                      modes=match_modes(list(modes_lin), list(modes_nl)), linear=linear,
+                      evaluation=evaluation, undetermined=undetermined)

@@ -1057,13 +1057,11 @@ def _compare_with_linear(session: IdentSession, model: StateSpaceModel, modes: S
                                   "forces from the even ones")
     else:
         data_nl, data_lin, how = session.data, linear.data, "every period"
-    test = nested_test(model, data_nl, linear.model, data_lin,
+    return nested_test(model, data_nl, linear.model, data_lin,
                        d_zero=session.d_zero,
                        modes_nl=[m.frequency_hz for m in modes],
-                       modes_lin=[m.frequency_hz for m in linear.modes])
-    test.linear, test.evaluation = linear, how
-    test.require_coefficients(verdicts)
-    return test
+                       modes_lin=[m.frequency_hz for m in linear.modes],
+                       verdicts=verdicts, linear=linear, evaluation=how)
 
 
 def _split_periods(session: IdentSession) -> tuple[FrequencyData, FrequencyData] | None:
