@@ -158,7 +158,7 @@ def smallsat_frequency_data(level: str = "100N", n_channels: int = 39, snr_db: f
     :func:`fnsi_lab.identify` prepares them (for data-only uses: the 1 N FRF of Fig. 11)."""
     from fnsi_lab.api import load_config
     from fnsi_lab.ident.io import input_from_arrays
-    from fnsi_lab.ident.pipeline import prepare_session
+    from fnsi_lab.ident.session import prepare_session
     arrays, chans, info = smallsat_arrays(level, n_channels, snr_db, seed, noise_seed,
                                           transient_periods, steady_periods)
     cfg = load_config(ident_config(level, transient_periods, time_base))

@@ -322,7 +322,6 @@ class Nonlinearity:
                 return np.where(d > g, d - g, 0.0)[:, None]
             return np.where(d < -g, d + g, 0.0)[:, None]
         if self.kind == "spline":
-            from fnsi_lab.ident.spline import hinge_columns
             cols = [hinge_columns(d, self.knots)]
             if self.velocity_knots:
                 cols.append(hinge_columns(v, self.velocity_knots, ramp=True))
@@ -380,3 +379,31 @@ def evaluate_basis(basis: Sequence[Nonlinearity], q: np.ndarray, q_dot: np.ndarr
 def nonlinearity_from_dict(d: Mapping) -> Nonlinearity:
     """Build a :class:`Nonlinearity` from a plain mapping (already validated)."""
     return Nonlinearity(**dict(d))
+
+
+def hinge_columns(x: np.ndarray, knots: Sequence[float], *, ramp: bool = False) -> np.ndarray:
+    """Piecewise-linear columns with zero force and slope on the segment holding 0.
+
+    Parameters
+    ----------
+    x : ndarray, shape (n,)
+        Relative displacement (or velocity).
+    knots : sequence of float
+        Knot positions (sorted).
+    ramp : bool
+        Add ``clip(x, t_-, t_+)`` between the innermost negative and positive knots (or
+        ``+-`` the innermost knot when all are on one side).
+
+    Returns
+    -------
+    ndarray, shape (n, len(knots) + ramp)
+    """
+    x = np.asarray(x, float)
+    cols = [np.maximum(x - t, 0.0) if t >= 0 else np.minimum(x - t, 0.0) for t in knots]
+    if ramp:
+        t = np.asarray(knots, float)
+        neg, pos = t[t < 0], t[t >= 0]
+        lo = float(neg.max()) if neg.size else -float(np.min(np.abs(t)))
+        hi = float(pos.min()) if pos.size else float(np.min(np.abs(t)))
+        cols.append(np.clip(x, lo, hi))
+    return np.stack(cols, axis=1) if cols else np.zeros((x.size, 0))

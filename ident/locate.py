@@ -554,7 +554,7 @@ def candidate_input(data, candidate: Mapping[str, float], *, knots: int = 0):
     -------
     FrequencyData
     """
-    from fnsi_lab.ident.spline import _spread, hinge_columns
+    from fnsi_lab.ident.spline import hinge_columns, spread_knots
 
     motion = data.motion
     chans = list(motion.channels)
@@ -565,7 +565,7 @@ def candidate_input(data, candidate: Mapping[str, float], *, knots: int = 0):
     v = None if motion.velocity is None else motion.velocity @ L
     h = generic_columns(x, v)
     if knots:
-        t = _spread(x, knots)
+        t = spread_knots(x, knots)
         extra = np.stack([hinge_columns(x[r], t) for r in range(x.shape[0])])
         h = np.concatenate([extra, h], axis=2)
     rms_h = np.sqrt(np.mean(h ** 2, axis=(0, 1)))
@@ -726,7 +726,7 @@ def locate_input(inp, cfg, *, candidates: Any = "all", order: int | None = None,
     from fnsi_lab.ident.basis import Nonlinearity
     from fnsi_lab.ident.fnsi import model_at_order, subspace_decomposition
     from fnsi_lab.ident.periodic import as_displacement_outputs
-    from fnsi_lab.ident.pipeline import prepare_session
+    from fnsi_lab.ident.session import prepare_session
 
     t0 = time.perf_counter()
     lin_cfg = _replace(cfg, nonlinearities=(), nonlinearities_auto=False)
@@ -765,3 +765,30 @@ def locate_input(inp, cfg, *, candidates: Any = "all", order: int | None = None,
     screened.warnings = list(session.warnings) + list(screened.warnings)
     screened.order = n
     return screened
+
+
+def with_located_element(inp: Any, cfg: Any, *,
+                         progress: Callable[[str], None] | None = None) -> tuple[Any, Localisation]:
+    """``nonlinearities: auto``: the config with a spline element where :func:`locate_input`
+    locates the nonlinearity, and the localisation (its JSON goes to the answer's evidence).
+
+    Raises
+    ------
+    IdentError
+        No candidate explains the distortion beyond the noise.
+    """
+    from dataclasses import replace
+
+    from fnsi_lab.ident.basis import Nonlinearity
+    from fnsi_lab.ident.spline import AUTO_KNOTS
+    located = locate_input(inp, cfg, progress=progress)
+    best = located.located
+    if best is None:
+        raise IdentError("nonlinearities: auto found no location whose nonlinear force "
+                         "explains the distortion beyond the noise (fnsi-lab locate shows "
+                         "the candidates); identify a linear model without "
+                         "nonlinearities, or list the element")
+    cfg = replace(cfg, nonlinearities_auto=False, nonlinearities=(Nonlinearity(
+        name=best.name.replace(" - ", "/"), kind="spline", channels=best.channels,
+        knot_count=AUTO_KNOTS),))
+    return cfg, located

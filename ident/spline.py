@@ -26,10 +26,10 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from fnsi_lab.ident.basis import Nonlinearity
+from fnsi_lab.ident.basis import Nonlinearity, hinge_columns
 from fnsi_lab.ident.errors import IdentError
 
-__all__ = ["hinge_columns", "resolve_knots", "needs_knots", "SplineCurve", "spline_curves",
+__all__ = ["hinge_columns", "spread_knots", "resolve_knots", "needs_knots", "SplineCurve", "spline_curves",
            "suggest_parametric", "suggested_config", "CURVE_POINTS", "SEARCH_MARGIN"]
 
 #: Knots of the spline that ``nonlinearities: auto`` puts at the located element (on the
@@ -49,34 +49,6 @@ MAX_MISFIT = 0.5
 FREE_SIDE = 0.05
 
 
-def hinge_columns(x: np.ndarray, knots: Sequence[float], *, ramp: bool = False) -> np.ndarray:
-    """Piecewise-linear columns with zero force and slope on the segment holding 0.
-
-    Parameters
-    ----------
-    x : ndarray, shape (n,)
-        Relative displacement (or velocity).
-    knots : sequence of float
-        Knot positions (sorted).
-    ramp : bool
-        Add ``clip(x, t_-, t_+)`` between the innermost negative and positive knots (or
-        ``+-`` the innermost knot when all are on one side).
-
-    Returns
-    -------
-    ndarray, shape (n, len(knots) + ramp)
-    """
-    x = np.asarray(x, float)
-    cols = [np.maximum(x - t, 0.0) if t >= 0 else np.minimum(x - t, 0.0) for t in knots]
-    if ramp:
-        t = np.asarray(knots, float)
-        neg, pos = t[t < 0], t[t >= 0]
-        lo = float(neg.max()) if neg.size else -float(np.min(np.abs(t)))
-        hi = float(pos.min()) if pos.size else float(np.min(np.abs(t)))
-        cols.append(np.clip(x, lo, hi))
-    return np.stack(cols, axis=1) if cols else np.zeros((x.size, 0))
-
-
 def needs_knots(basis: Sequence[Nonlinearity]) -> bool:
     """True if a spline element still holds a knot count instead of positions."""
     return any(nl.kind == "spline" and (len(nl.knots) < nl.knot_count or
@@ -84,7 +56,7 @@ def needs_knots(basis: Sequence[Nonlinearity]) -> bool:
                for nl in basis)
 
 
-def _spread(values: np.ndarray, count: int) -> tuple[float, ...]:
+def spread_knots(values: np.ndarray, count: int) -> tuple[float, ...]:
     """``count`` knots evenly inside ``[min, max]`` of the values (ends excluded)."""
     lo, hi = float(np.min(values)), float(np.max(values))
     if not hi > lo:
@@ -115,11 +87,11 @@ def resolve_knots(basis: Sequence[Nonlinearity], motion: Any) -> tuple[Nonlinear
         L = nl.location_vector(chans)
         kw: dict = {}
         if len(nl.knots) < nl.knot_count:
-            kw["knots"] = _spread(motion.displacement @ L + nl.offset, nl.knot_count)
+            kw["knots"] = spread_knots(motion.displacement @ L + nl.offset, nl.knot_count)
         if len(nl.velocity_knots) < nl.velocity_knot_count:
             if motion.velocity is None:
                 raise IdentError(f"nonlinearity {nl.name!r}: no velocity kept for its knots")
-            kw["velocity_knots"] = _spread(motion.velocity @ L, nl.velocity_knot_count)
+            kw["velocity_knots"] = spread_knots(motion.velocity @ L, nl.velocity_knot_count)
         out.append(replace(nl, **kw))
     return tuple(out)
 

@@ -1,0 +1,204 @@
+"""An identification's session: the configured channels of the data as frequency data.
+
+:func:`prepare_session` selects the configured channels, fills a simulated recording's truth
+(:func:`apply_recording_truth`), builds the frequency data (:mod:`ident.periodic`), places
+spline knots on the measured motion and estimates the basis parameters left to the data
+(:mod:`ident.parameter_search`). The entry point (:mod:`ident.pipeline`) and the
+localisation (:mod:`ident.locate`) both start from it.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import dataclass, field, replace
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from fnsi_lab.ident.basis import Nonlinearity
+from fnsi_lab.ident.config import IdentConfig
+from fnsi_lab.ident.errors import IdentError, IdentWarning, NoExcitedLineError
+from fnsi_lab.ident.io import IdentInput, select_channels
+from fnsi_lab.ident.parameter_search import (DEFAULT_SEARCH_ORDER, ParameterSearchResult,
+                                             estimate_basis_parameters, has_unknown_parameters)
+from fnsi_lab.ident.periodic import FrequencyData, prepare_frequency_data, with_basis
+from fnsi_lab.ident.spline import needs_knots, resolve_knots
+from fnsi_lab.progress import Progress
+
+__all__ = ["IdentSession", "prepare_session", "apply_recording_truth", "no_excited_line"]
+
+
+@dataclass
+class IdentSession:
+    """Everything prepared before an order is chosen.
+
+    Attributes
+    ----------
+    config : IdentConfig
+        The configuration actually used (truth values filled in for simulated recordings).
+    input : IdentInput
+        The selected channels.
+    data : FrequencyData
+        Spectra of the processed lines.
+    weighted : bool
+        Noise-weighted SVD and B, D least squares.
+    d_zero : bool
+        ``D = 0`` in the least squares.
+    timings_s : dict
+        Seconds per stage.
+    parameter_search : ParameterSearchResult or None
+        The estimate of the basis parameters left to the data (``clearances: auto``...);
+        ``config.nonlinearities`` then hold the estimated values.
+    warnings : list of str
+        Everything a user should read about the data (steady state, truth mismatch...).
+    evidence : dict
+        Decisions taken from the data on the way (``time_base_choice``), copied to the JSON.
+    """
+
+    config: IdentConfig
+    input: IdentInput
+    data: FrequencyData
+    weighted: bool
+    d_zero: bool
+    timings_s: dict = field(default_factory=dict)
+    warnings: list = field(default_factory=list)
+    evidence: dict = field(default_factory=dict)
+    parameter_search: ParameterSearchResult | None = None
+    cache: dict = field(default_factory=dict, repr=False)
+
+
+def apply_recording_truth(cfg: IdentConfig, truth: Mapping | None) -> tuple[IdentConfig, list[str]]:
+    """Fill missing ``truth`` coefficient values from a simulated recording's truth.
+
+    Only the known coefficient values (for ``error_percent``) are taken; basis parameters
+    (clearances, exponents) are never copied. Returns the updated config and warnings for
+    clearances that differ from the truth (the basis would then not match the simulated
+    element).
+    """
+    notes: list[str] = []
+    if not truth or not isinstance(truth.get("nonlinearities"), list):
+        return cfg, notes
+    by_name = {t.get("name"): t for t in truth["nonlinearities"] if isinstance(t, dict)}
+    nls = []
+    for nl in cfg.nonlinearities:
+        t = by_name.get(nl.name)
+        if t is None:
+            nls.append(nl)
+            continue
+        coefs = t.get("coefficients", {})
+        keys = {"trilinear": ["neg", "pos"], "polynomial": ["k"], "quadratic_damping": ["c"],
+                "coulomb": ["f"]}.get(nl.kind, list(coefs))
+        if (nl.truth is None and all(k in coefs for k in keys)
+                and len(keys) == len(nl.coefficient_names)):
+            nl = replace(nl, truth=tuple(float(coefs[k]) for k in keys))
+        given = [float(x) for x in t.get("clearances", [])]
+        mine = {"trilinear": list(nl.clearances), "bilinear": [nl.clearance]}.get(nl.kind)
+        if (mine is not None and given and not nl.unknown   # 'auto': estimated, compared later
+                and all(isinstance(m, (int, float)) for m in mine)
+                and not np.allclose(mine, given, rtol=1e-9, atol=0)):
+            notes.append(f"nonlinearity {nl.name!r}: clearances {mine} differ from the "
+                         f"recording's truth {given}")
+        nls.append(nl)
+    return replace(cfg, nonlinearities=tuple(nls)), notes
+
+
+def prepare_session(inp: IdentInput, cfg: IdentConfig, *, search_order: int | None = None,
+                    select_search_order: bool = False, progress: Any = None,
+                    motion_for: Sequence[Nonlinearity] = (),
+                    basis_oversample: int | None = None) -> IdentSession:
+    """Select the configured channels and build the frequency data.
+
+    Basis parameters left to the data (``clearances: auto``, ``exponent: auto``...) are
+    estimated here, before any identification (:mod:`ident.parameter_search`), at
+    ``search_order`` (default the config's ``order``, else 30); with
+    ``select_search_order`` that is the largest order, and the information criterion
+    picks the order of the search (docs/ident.md, "Unknown basis parameters").
+    ``motion_for`` keeps the averaged motion of more elements' channels in ``data.motion``
+    (:mod:`ident.locate` evaluates candidate locations on it); ``basis_oversample``
+    overrides the config's.
+
+    Raises
+    ------
+    IdentError
+        Channels missing, band outside the data, too few periods, ... (one line each).
+    """
+    t0 = time.perf_counter()
+    inp = select_channels(inp, outputs=cfg.outputs, inputs=[i.name for i in cfg.inputs] or None)
+    cfg, truth_notes = apply_recording_truth(cfg, inp.truth)
+    nyquist = inp.sample_rate_hz / 2
+    if cfg.band_hz[1] > nyquist:  # the band's upper edge included: no line exists there
+        where = "starts" if cfg.band_hz[0] >= nyquist else "ends"
+        raise IdentError(f"band_hz {list(cfg.band_hz)} {where} above the Nyquist frequency "
+                         f"{nyquist:g} Hz of the data (fs {inp.sample_rate_hz:g} Hz); "
+                         f"lower band_hz to at most {nyquist:g} Hz")
+    if cfg.output_quantity and inp.output_quantity and cfg.output_quantity != inp.output_quantity:
+        # accelerations read as displacements give answers off by hundreds of percent
+        where = inp.path or "the data"
+        raise IdentError(f"{where}: the outputs are {inp.output_quantity} but the ident config "
+                         f"says output_quantity: {cfg.output_quantity} (fix: make them agree, or "
+                         "leave output_quantity out of the config)")
+    quantity = cfg.output_quantity or inp.output_quantity or "displacement"
+    unknown = has_unknown_parameters(cfg.nonlinearities)
+    knots = needs_knots(cfg.nonlinearities)   # spline knot counts: placed on the motion
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", IdentWarning)
+        data = prepare_frequency_data(
+            u=inp.u, y=inp.y, sample_rate_hz=inp.sample_rate_hz,
+            samples_per_period=inp.samples_per_period,
+            basis=() if unknown or knots else cfg.nonlinearities,
+            motion_for=(cfg.nonlinearities if unknown or knots else ()) + tuple(motion_for),
+            band_hz=cfg.band_hz,
+            transient_periods=(cfg.transient_periods if cfg.transient_periods is not None
+                               else inp.transient_periods),
+            output_quantity=quantity, output_names=inp.output_channels,
+            input_names=inp.input_channels, excited_lines=inp.excited_lines,
+            highpass_hz=cfg.highpass_hz, steady_state_tolerance=cfg.steady_state_tolerance,
+            steady_periods=cfg.steady_periods,
+            time_base=cfg.time_base, bilinear_period_s=cfg.bilinear_period_s,
+            basis_oversample=basis_oversample or cfg.basis_oversample,
+            integration_min_snr=cfg.integration_min_snr or None)
+    if not np.any(data.excited):  # poles fitted to undriven lines would be no answer
+        raise NoExcitedLineError(no_excited_line(data))
+    weighted = cfg.weighting != "none"
+    if cfg.weighting == "noise" and data.noise_cov is None:
+        if data.n_periods >= 2:  # ident.periodic.floor_noise: the spread is no noise
+            raise IdentError(
+                "weighting: noise has nothing to weight with: the period-to-period spread of "
+                "every output is below the resolution of a 24-bit record (noise-free data, "
+                "e.g. a simulation); use auto or none")
+        raise IdentError("weighting: noise needs at least 2 steady-state periods (use auto or none)")
+    if knots:
+        cfg = replace(cfg, nonlinearities=resolve_knots(cfg.nonlinearities, data.motion))
+        if not unknown:
+            data = with_basis(data, cfg.nonlinearities)
+    timings = {"prepare": time.perf_counter() - t0}
+    search = None
+    if unknown:  # the one place where 'auto' basis parameters become numbers
+        t1 = time.perf_counter()
+        bar = Progress(2, "basis parameters", enabled=bool(progress))
+        search = estimate_basis_parameters(
+            data, cfg.nonlinearities, order=int(search_order or cfg.order or DEFAULT_SEARCH_ORDER),
+            d_zero=cfg.d_zero_for(quantity), weighted=weighted, select_order=select_search_order,
+            progress=lambda note: bar.update(1, note=note))
+        cfg = replace(cfg, nonlinearities=search.basis)
+        data = with_basis(data, search.basis)
+        timings["parameter_search"] = time.perf_counter() - t1
+    return IdentSession(config=cfg, input=inp, data=data, weighted=weighted,
+                        d_zero=cfg.d_zero_for(quantity), parameter_search=search,
+                        timings_s=timings,
+                        warnings=list(inp.notes) + truth_notes
+                        + [str(w.message) for w in caught]
+                        + (list(search.warnings) if search is not None else []))
+
+
+def no_excited_line(data: FrequencyData) -> str:
+    """One line naming the processed band and where the excitation is."""
+    lo, hi = (float(x) for x in data.band_hz)
+    exc = data.excitation or {}
+    where = ""
+    if exc.get("band_hz"):
+        a, b = exc["band_hz"]
+        where = f"; the excitation's {exc.get('n_excited')} lines lie in {a:.4g}-{b:.4g} Hz"
+    return (f"no excited line in the processed band {lo:g}-{hi:g} Hz{where} "
+            "(fix: an ident config band_hz that covers them)")
