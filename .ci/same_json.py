@@ -8,7 +8,8 @@ The cases cover every kind of answer ``Identification.to_json`` writes: a fixed 
 robust pipeline on the 3-DOF chain with a cubic spring (1 % output noise), the linear chain
 fitted with a cubic basis (the nested test keeps the linear fit's modes), the chain with a
 stop whose gaps are left to the data and refined by the output error, a spline element
-(its force curve and suggested config), and the simulated
+(its force curve and suggested config), the real Silverbox measurement
+(bench/data/silverbox-schroeder: order 2 and the robust pipeline), and the simulated
 SmallSat through the command line (``fnsi-lab acquire`` + ``fnsi-lab ident --config
 smallsat39 --auto``). ``compare`` checks the same keys everywhere, equal strings and
 booleans, and numbers to ``RTOL`` relative (same machine and code: the numbers should be
@@ -75,6 +76,13 @@ def write(folder: str) -> None:
     }
     for name, (args, cfg, kw) in cases.items():
         doc = fnsi_lab.identify(_chain_arrays(*args), cfg, **kw).to_json()
+        (out / f"{name}.json").write_text(json.dumps(json_safe(doc)))
+        print(name, "written", flush=True)
+    root = Path(fnsi_lab.__file__).resolve().parents[1]   # the checkout under test
+    silverbox = root / "bench" / "data" / "silverbox-schroeder"
+    for name, kw in (("silverbox_order2", {"order": 2}), ("silverbox_auto", {})):
+        doc = fnsi_lab.identify(str(silverbox / "schroeder.npz"),
+                                str(silverbox / "schroeder.yaml"), **kw).to_json()
         (out / f"{name}.json").write_text(json.dumps(json_safe(doc)))
         print(name, "written", flush=True)
     rec = out / "smallsat.mcap"
