@@ -251,10 +251,10 @@ def save_rrd(report: Any, path: str | os.PathLike[str], *,
 # ------------------------------------------------------------------------------ report
 def figure_levels(rec: Any, output: str) -> Any:
     """The classic level plot of one output of one record (matplotlib figure)."""
-    from fnsi_lab.viewer.report import _figure
+    from fnsi_lab.viewer.html import new_figure
 
     o = _output(rec, output)
-    fig, (ax,) = _figure(9.0, 4.0)
+    fig, (ax,) = new_figure(9.0, 4.0)
     for key, f, lv in level_series(o.spectra):
         colour, legend, kind = LEVEL_STYLE[key]
         style = dict(ls="none", marker=".", ms=3.0) if kind == "points" else dict(lw=1.0)
@@ -269,10 +269,10 @@ def figure_levels(rec: Any, output: str) -> Any:
 
 def figure_frf_overlay(report: Any, output: str) -> Any:
     """BLA magnitude of every record at one output, by level (matplotlib figure)."""
-    from fnsi_lab.viewer.report import _figure
+    from fnsi_lab.viewer.html import new_figure
 
     recs = sorted(report.records, key=lambda r: r.input_rms)
-    fig, (ax,) = _figure(9.0, 4.0)
+    fig, (ax,) = new_figure(9.0, 4.0)
     for i, r in enumerate(recs):
         j = [o.name for o in r.outputs].index(output)
         c = _level_colour(i, len(recs))
@@ -290,7 +290,7 @@ def figure_frf_overlay(report: Any, output: str) -> Any:
 
 def distortion_section(report: Any, outputs: Sequence[str] | None = None) -> str:
     """The report section (HTML): verdict tables, level plots, BLA overlay, level trend."""
-    from fnsi_lab.viewer.report import _figure_html, _table
+    from fnsi_lab.viewer.html import figure_html, html_table
 
     names = chosen_outputs(report, outputs)
     parts = ["<h2 id='distortion'>Nonlinear distortion analysis</h2>",
@@ -309,15 +309,15 @@ def distortion_section(report: Any, outputs: Sequence[str] | None = None) -> str
         parts += [f"<h3>{html.escape(record_label(rec))}</h3>",
                   f"<p class='note'>noise: {html.escape(rec.noise_source)}; "
                   f"{rec.n_realizations} realisation(s) x {rec.n_periods} period(s)</p>",
-                  _table(rows), _table(res)]
+                  html_table(rows), html_table(res)]
         for name in names:
-            parts.append(_figure_html(figure_levels(rec, name),
+            parts.append(figure_html(figure_levels(rec, name),
                                       f"levels of {name} against frequency",
                                       f"fig-levels-{_key(record_label(rec))}-{_key(name)}"))
     if len(report.records) > 1:
         parts.append("<h3>By level</h3>")
         for name in names:
-            parts.append(_figure_html(figure_frf_overlay(report, name),
+            parts.append(figure_html(figure_frf_overlay(report, name),
                                       f"BLA of {name} at every level",
                                       f"fig-bla-{_key(name)}"))
         rows = []
@@ -326,7 +326,7 @@ def distortion_section(report: Any, outputs: Sequence[str] | None = None) -> str
                          "shift (%)": _list(row["shift_percent"], 3),
                          "damping (%)": _list([None if z is None else 100 * z
                                                for z in row["damping_ratio"]], 3)})
-        parts.append(_table(rows))
+        parts.append(html_table(rows))
     return "\n".join(parts)
 
 
@@ -341,12 +341,12 @@ def _list(values: Sequence[Any], digits: int) -> str:
 def render_distortion_report(report: Any, outputs: Sequence[str] | None = None, *,
                              title: str = "fnsi-lab distortion analysis") -> str:
     """One offline HTML page holding :func:`distortion_section`."""
-    from fnsi_lab.viewer.report import _CSS
+    from fnsi_lab.viewer.html import CSS
 
     now = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
     return "\n".join([
         f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
-        f"<title>{html.escape(title)}</title><style>{_CSS}</style></head><body>",
+        f"<title>{html.escape(title)}</title><style>{CSS}</style></head><body>",
         f"<h1>{html.escape(title)}</h1><p class='note'>generated {now} by fnsi-lab</p>",
         distortion_section(report, outputs), "</body></html>"])
 

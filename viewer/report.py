@@ -16,10 +16,11 @@ from __future__ import annotations
 
 import datetime as _dt
 import html
-import io
 from typing import Any, Mapping, Sequence
 
 import numpy as np
+
+from fnsi_lab.viewer.html import CSS, figure_html, fmt_g, html_table, kv_table, new_figure, svg
 
 #: Stabilisation classes in legend order -> (colour, marker, legend).
 STAB_STYLE: dict[str, tuple[str, str, str]] = {
@@ -212,35 +213,21 @@ def coefficient_statistics(result: Mapping[str, Any]) -> list[dict]:
     for c in result.get("coefficients") or []:
         out.append({"coefficient": c["name"],
                     "unit": c.get("unit") or coefficient_unit(result, c["name"]) or "-",
-                    "value (declared)": _g(c.get("value")),
-                    "mean Re": _g(c.get("mean_real")), "std Re": _g(c.get("std_real"), 3),
-                    "log10 |Re/Im|": _g(c.get("log10_re_im"), 3), "LS value": _g(c.get("ls_value")),
-                    "exact": _g(exact.get(c["name"])),
-                    "error mean (%)": _g(c.get("error_percent"), 3),
-                    "error LS (%)": _g(c.get("ls_error_percent"), 3),
+                    "value (declared)": fmt_g(c.get("value")),
+                    "mean Re": fmt_g(c.get("mean_real")), "std Re": fmt_g(c.get("std_real"), 3),
+                    "log10 |Re/Im|": fmt_g(c.get("log10_re_im"), 3), "LS value": fmt_g(c.get("ls_value")),
+                    "exact": fmt_g(exact.get(c["name"])),
+                    "error mean (%)": fmt_g(c.get("error_percent"), 3),
+                    "error LS (%)": fmt_g(c.get("ls_error_percent"), 3),
                     "lines": str(c.get("n_lines", "-"))})
     return out
 
 
-def _g(x: Any, digits: int = 6) -> str:
-    return "-" if x is None else f"{x:.{digits}g}"
-
-
 # ---------------------------------------------------------------------------- figures
-def _figure(width: float = 9.0, height: float = 4.0, rows: int = 1, sharex: bool = False):
-    # matplotlib's object API, not pyplot: no backend or global figure state is touched
-    # (the caller may be a notebook with its own backend), nothing to close afterwards
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(width, height), layout="constrained")
-    axes = fig.subplots(rows, 1, sharex=sharex, squeeze=False)
-    return fig, [a[0] for a in axes]
-
-
 def figure_stabilisation(result: Mapping[str, Any]) -> Any:
     """Pole frequency against model order, one marker per class, the selected order marked."""
     rows = stabilisation_rows(result)
-    fig, (ax,) = _figure(9.0, 5.0)
+    fig, (ax,) = new_figure(9.0, 5.0)
     classes = list(STAB_STYLE) + sorted({r["class"] for r in rows} - set(STAB_STYLE))
     for cls in classes:
         sel = [r for r in rows if r["class"] == cls]
@@ -268,7 +255,7 @@ def _mark_order(ax: Any, order: Any) -> None:
 def figure_criterion(result: Mapping[str, Any]) -> Any:
     """Information criterion against model order (log scale), the selected order marked."""
     ic = result.get("information_criterion") or []
-    fig, (ax,) = _figure(9.0, 3.6)
+    fig, (ax,) = new_figure(9.0, 3.6)
     n = np.array([r["order"] for r in ic], dtype=float)
     v = np.array([np.nan if r.get("value") is None else r["value"] for r in ic], dtype=float)
     ok = np.isfinite(v) & (v > 0)
@@ -298,7 +285,7 @@ def figure_mdi(result: Mapping[str, Any]) -> Any:
     key = mdi_key(result)
     rows = [dict(r, fate=fate) for r, fate in zip(result.get("mdi") or [], pole_fates(result))
             if r.get(key) is not None and r[key] > 0]
-    fig, (ax,) = _figure(9.0, 4.2)
+    fig, (ax,) = new_figure(9.0, 4.2)
     for fate in FATE_ORDER:
         sel = [r for r in rows if r["fate"] == fate]
         if not sel:
@@ -356,7 +343,7 @@ def figure_coefficients(result: Mapping[str, Any]) -> Any | None:
     exact = exact_values(result)
     stats = {c["name"]: c for c in result.get("coefficients") or []}
     names = list(spectra["names"])
-    fig, axes = _figure(9.0, 2.2 * 2 * len(names) + 0.8, rows=2 * len(names), sharex=True)
+    fig, axes = new_figure(9.0, 2.2 * 2 * len(names) + 0.8, rows=2 * len(names), sharex=True)
     f_lo, f_hi = float(f[excited].min()), float(f[excited].max())
     margin = 0.03 * max(f_hi - f_lo, 1e-9)
     for k, name in enumerate(names):
@@ -406,7 +393,7 @@ def figure_restoring_force(result: Mapping[str, Any]) -> Any | None:
     curves = spline_curves(result)
     if not curves:
         return None
-    fig, axes = _figure(9.0, 3.2 * len(curves) + 0.6, rows=len(curves))
+    fig, axes = new_figure(9.0, 3.2 * len(curves) + 0.6, rows=len(curves))
     sugg = {(s.get("element"), s.get("argument")): s for s in result.get("suggestions") or []}
     for k, (ax, c) in enumerate(zip(axes, curves)):
         x, f = np.asarray(c["x"], float), np.asarray(c["force"], float)
@@ -452,19 +439,19 @@ def restoring_force_html(result: Mapping[str, Any]) -> list[str]:
         return []
     rows = []
     for s in result.get("suggestions") or []:
-        pars = ", ".join(f"{k} {_g(s[k]) if not isinstance(s[k], list) else [_g(v) for v in s[k]]}"
+        pars = ", ".join(f"{k} {fmt_g(s[k]) if not isinstance(s[k], list) else [fmt_g(v) for v in s[k]]}"
                          for k in ("clearances", "clearance", "side", "exponent",
                                    "velocity_scale") if k in s)
         rows.append({"element": s.get("element"), "argument": s.get("argument"),
                      "suggested form": s.get("kind"), "parameters": pars or s.get("reason", ""),
-                     "coefficients": ", ".join(_g(v) for v in s.get("values") or []),
-                     "misfit": _g(s["misfit"], 3) if "misfit" in s else ""})
+                     "coefficients": ", ".join(fmt_g(v) for v in s.get("values") or []),
+                     "misfit": fmt_g(s["misfit"], 3) if "misfit" in s else ""})
     text = (result.get("suggested_config") or {}).get("yaml") or ""
     return ["<h2>Restoring force (kind: spline)</h2>",
-            _figure_html(figure_restoring_force(result),
+            figure_html(figure_restoring_force(result),
                          "the identified force curve, its band and the parametric form it "
                          "suggests (docs/discovery.md)", "fig-restoring-force"),
-            _table(rows),
+            html_table(rows),
             "<p>Suggested config (<code>fnsi-lab ident ... --suggest OUT.yaml</code> writes "
             "it):</p>", f"<pre id='suggested-config'>{html.escape(text)}</pre>"]
 
@@ -487,7 +474,7 @@ def figure_frf(result: Mapping[str, Any], output: str | None = None) -> Any | No
             curves[key] = h[order, i, 0]
     if not f.size or "underlying_linear" not in curves:
         return None
-    fig, (mag, ph) = _figure(9.0, 6.0, rows=2, sharex=True)
+    fig, (mag, ph) = new_figure(9.0, 6.0, rows=2, sharex=True)
     # measured: markers on top; model: a thin line under them; underlying linear: dashed
     for key, label, style in (("measured", "measured (markers)",
                                dict(ls="none", marker="o", ms=3.0, mew=0, zorder=3)),
@@ -525,46 +512,7 @@ def mdi_caption(result: Mapping[str, Any]) -> str:
             + " The dashed line is the MDI threshold.")
 
 
-def svg(fig: Any) -> str:
-    """A matplotlib figure as inline SVG text."""
-    buf = io.StringIO()
-    fig.savefig(buf, format="svg")
-    text = buf.getvalue()
-    return text[text.index("<svg"):]  # drop the XML prolog and DOCTYPE: inline in HTML
-
-
 # ---------------------------------------------------------------------------- HTML
-_CSS = """
-body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;margin:2em auto;max-width:1000px;color:#222}
-h1{font-size:1.6em}h2{font-size:1.25em;border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:1.8em}
-table{border-collapse:collapse;margin:.6em 0;font-size:.9em}td,th{border:1px solid #ddd;padding:3px 8px;text-align:left}
-th{background:#f3f3f3}figure{margin:1em 0}figure svg{max-width:100%;height:auto}
-.note{color:#666;font-size:.85em}code{background:#f5f5f5;padding:0 3px}
-.failed{border:2px solid #d55e00;background:#fff3ec;padding:.6em 1em}
-"""
-
-
-def _table(rows: Sequence[Mapping[str, Any]]) -> str:
-    if not rows:
-        return "<p class='note'>none</p>"
-    cols = list(rows[0])
-    head = "".join(f"<th>{html.escape(str(c))}</th>" for c in cols)
-    body = "".join("<tr>" + "".join(f"<td>{html.escape(str(r.get(c, '')))}</td>" for c in cols)
-                   + "</tr>" for r in rows)
-    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
-
-
-def _kv_table(rows: Sequence[tuple[str, Any]]) -> str:
-    return _table([{"quantity": k, "value": v} for k, v in rows])
-
-
-def _figure_html(fig: Any, caption: str, fig_id: str) -> str:
-    if fig is None:
-        return f"<p class='note'>{html.escape(caption)}: not available in this result.</p>"
-    return (f"<figure id='{fig_id}'>{svg(fig)}<figcaption class='note'>"
-            f"{html.escape(caption)}</figcaption></figure>")
-
-
 def metadata_rows(metadata: Mapping[str, Any] | None,
                   result: Mapping[str, Any]) -> list[tuple[str, str]]:
     """Recording and processing facts for the report header (short values only)."""
@@ -632,7 +580,7 @@ def render_report(result: Mapping[str, Any], metadata: Mapping[str, Any] | None 
     """
     now = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
     parts = [f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
-             f"<title>{html.escape(title)}</title><style>{_CSS}</style></head><body>",
+             f"<title>{html.escape(title)}</title><style>{CSS}</style></head><body>",
              f"<h1>{html.escape(title)}</h1><p class='note'>generated {now} by fnsi-lab</p>"]
     failure = failure_reason(result)
     if failure:
@@ -640,33 +588,33 @@ def render_report(result: Mapping[str, Any], metadata: Mapping[str, Any] | None 
                      f"{html.escape(failure)}. What follows was fitted to lines the "
                      "excitation did not drive: it is shown as it came out, not as an "
                      "identification.</p>")
-    parts += ["<h2>Summary</h2>", _kv_table(summary_rows(result)),
-              "<h2>Modes</h2>", _table(mode_rows(result))]
+    parts += ["<h2>Summary</h2>", kv_table(summary_rows(result)),
+              "<h2>Modes</h2>", html_table(mode_rows(result))]
     warnings = result.get("warnings") or []
     if warnings:
         parts.append("<ul class='note'>" + "".join(f"<li>{html.escape(str(w))}</li>"
                                                    for w in warnings) + "</ul>")
     auto = result.get("method") == "auto"
     parts += ["<h2>Stabilisation diagram</h2>",
-              _figure_html(figure_stabilisation(result) if auto else None,
+              figure_html(figure_stabilisation(result) if auto else None,
                            "pole frequency against model order; classes against the previous "
                            "order (frequency, damping, mode shape)", "fig-stabilisation"),
               "<h2>Information criterion</h2>",
-              _figure_html(figure_criterion(result) if auto else None,
+              figure_html(figure_criterion(result) if auto else None,
                            "information criterion against model order", "fig-criterion"),
               "<h2>Modal dominancy index</h2>",
-              _figure_html(figure_mdi(result) if auto else None,
+              figure_html(figure_mdi(result) if auto else None,
                            mdi_caption(result), "fig-mdi"),
-              "<h2>Nonlinear coefficients</h2>", _table(coefficient_statistics(result)),
-              _figure_html(figure_coefficients(result),
+              "<h2>Nonlinear coefficients</h2>", html_table(coefficient_statistics(result)),
+              figure_html(figure_coefficients(result),
                            "coefficient spectra c_a(f): a physical coefficient is constant "
                            "and real over the excited lines", "fig-coefficients"),
               *restoring_force_html(result),
               "<h2>Frequency response</h2>",
-              _figure_html(figure_frf(result, output),
+              figure_html(figure_frf(result, output),
                            "measured FRF, model FRF (nonlinear terms included) and the "
                            "underlying linear FRF", "fig-frf"),
-              "<h2>Recording and processing</h2>", _kv_table(metadata_rows(metadata, result)),
+              "<h2>Recording and processing</h2>", kv_table(metadata_rows(metadata, result)),
               "</body></html>"]
     return "\n".join(parts)
 

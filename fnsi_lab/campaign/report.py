@@ -15,7 +15,8 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from fnsi_lab.campaign.compare import Comparison
-from fnsi_lab.viewer.report import _CSS, COEFF_COLOURS, _figure, _figure_html, _g, _table
+from fnsi_lab.viewer.html import CSS, figure_html, fmt_g, html_table, new_figure
+from fnsi_lab.viewer.report import COEFF_COLOURS
 
 
 def _level_scale(ax: Any, c: Comparison) -> None:
@@ -35,7 +36,7 @@ def figure_coefficients(c: Comparison) -> Any | None:
     names = [n for n, values in c.coefficients.items() if any(v.level is not None for v in values)]
     if not names:
         return None
-    fig, axes = _figure(height=2.6 * len(names), rows=len(names), sharex=True)
+    fig, axes = new_figure(height=2.6 * len(names), rows=len(names), sharex=True)
     for ax, name, colour in zip(axes, names, COEFF_COLOURS * len(names)):
         values = [v for v in c.coefficients[name] if v.level is not None]
         ok = [v for v in values if v.not_identifiable is None]
@@ -64,7 +65,7 @@ def figure_frequencies(c: Comparison) -> Any | None:
     """Shift of each natural frequency from the lowest level, percent."""
     if not c.frequencies:
         return None
-    fig, (ax,) = _figure(height=3.6)
+    fig, (ax,) = new_figure(height=3.6)
     for k, values in enumerate(c.frequencies):
         values = [v for v in values if v.level is not None]
         if not values:
@@ -89,7 +90,7 @@ def figure_frfs(c: Comparison) -> Any | None:
     cmap = matplotlib.colormaps["coolwarm"]
     known = [lv for lv in c.levels if lv is not None]
     lo, hi = (min(known), max(known)) if known else (0.0, 1.0)
-    fig, (ax,) = _figure(height=4.0)
+    fig, (ax,) = new_figure(height=4.0)
     for r in c.frfs:
         t = 0.5 if r.level is None or hi == lo else (r.level - lo) / (hi - lo)
         for k in range(r.frf.shape[1]):
@@ -108,11 +109,11 @@ def run_rows(rows: Sequence[Mapping[str, Any]], coefficient_names: Sequence[str]
     out = []
     for r in rows:
         row = {"file": Path(str(r["file"])).name, "status": r.get("status"),
-               "level": _g(r.get("force_rms")), "order": r.get("order") or "-",
+               "level": fmt_g(r.get("force_rms")), "order": r.get("order") or "-",
                "modes": r.get("n_modes") if r.get("n_modes") is not None else "-"}
         for name in coefficient_names:
             mean, std = r.get(name), r.get(f"{name}:std")
-            row[name] = "-" if mean is None else f"{mean:.6g} ± {_g(std, 3)}"
+            row[name] = "-" if mean is None else f"{mean:.6g} ± {fmt_g(std, 3)}"
         row["error"] = r.get("error") or ""
         out.append(row)
     return out
@@ -122,29 +123,29 @@ def render_campaign_report(c: Comparison, rows: Sequence[Mapping[str, Any]], *,
                            title: str = "fnsi-lab campaign") -> str:
     """The whole comparison as one HTML document."""
     now = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
-    deviations = [{"file": Path(r.file).name, "level": _g(r.level),
-                   "deviation from the mean (%)": _g(100 * r.deviation, 3)} for r in c.frfs]
+    deviations = [{"file": Path(r.file).name, "level": fmt_g(r.level),
+                   "deviation from the mean (%)": fmt_g(100 * r.deviation, 3)} for r in c.frfs]
     parts = [f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
-             f"<title>{html.escape(title)}</title><style>{_CSS}</style></head><body>",
+             f"<title>{html.escape(title)}</title><style>{CSS}</style></head><body>",
              f"<h1>{html.escape(title)}</h1><p class='note'>generated {now} by fnsi-lab: "
              f"{len(rows)} runs, {len(c.levels)} force level(s), {len(c.failed)} failed</p>",
              "<h2>Warnings</h2>",
              ("<ul>" + "".join(f"<li>{html.escape(w)}</li>" for w in c.warnings) + "</ul>")
              if c.warnings else "<p class='note'>none</p>",
-             "<h2>Runs</h2>", _table(run_rows(rows, list(c.coefficients))),
+             "<h2>Runs</h2>", html_table(run_rows(rows, list(c.coefficients))),
              "<h2>Nonlinear coefficients against force level</h2>",
-             _figure_html(figure_coefficients(c),
+             figure_html(figure_coefficients(c),
                           "mean over the runs at each level ± the estimate's spread over "
                           "frequency; grey: every run; red x: not identifiable at that level",
                           "fig-coefficients"),
              "<h2>Natural frequencies against force level</h2>",
-             _figure_html(figure_frequencies(c),
+             figure_html(figure_frequencies(c),
                           "shift of each underlying linear natural frequency from the lowest "
                           "level (modes matched by nearest frequency)", "fig-frequencies"),
              "<h2>Underlying linear FRFs of all runs</h2>",
-             _figure_html(figure_frfs(c),
+             figure_html(figure_frfs(c),
                           "they coincide when the nonlinear model is right: the underlying "
                           "linear system does not depend on the force level", "fig-frfs"),
-             _table(deviations),
+             html_table(deviations),
              "</body></html>"]
     return "\n".join(parts)
