@@ -25,8 +25,7 @@ from typing import Any, Literal, Sequence
 
 import numpy as np
 
-from fnsi_lab.daq.config import ExcitationConfig
-from fnsi_lab.daq.multisine import Multisine, multisine
+from fnsi_lab.daq.multisine import ExcitationConfig, Multisine, multisine
 from fnsi_lab.errors import ConfigError, DataFileError
 from fnsi_lab.outputs import atomic_output, dumps
 

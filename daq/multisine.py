@@ -6,8 +6,8 @@ consecutive periods concatenated.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Literal
+from dataclasses import dataclass, field
+from typing import Any, Literal
 
 import numpy as np
 
@@ -236,3 +236,70 @@ def multisine(samples_per_period: int, sample_rate_hz: float, band_hz: tuple[flo
                      sample_rate_hz=float(sample_rate_hz), samples_per_period=n,
                      n_periods=int(n_periods), rms=float(rms),
                      band_hz=(float(band_hz[0]), float(band_hz[1])), seed=seed)
+
+
+@dataclass(frozen=True)
+class ExcitationConfig:
+    """A periodic multisine (see :func:`daq.multisine.multisine`).
+
+    Attributes
+    ----------
+    band_hz : (float, float)
+        Excited band [f1, f2] in Hz; every DFT line of one period inside it is excited.
+    rms : float
+        RMS of the force, in the unit of the force channel.
+    samples_per_period : int
+        N, samples per period.
+    periods : int
+        P, periods per realization, transient ones included.
+    transient_periods : int
+        Leading periods that identification drops.
+    realizations : int
+        R, independent random-phase realizations.
+    seed : int or None
+        Seed of the phases (reproducible runs).
+    phases : {'random', 'schroeder'}
+        Phase law.
+    grid : {'full', 'odd', 'random-odd'}
+        Lines of the band that are excited (:func:`daq.multisine.multisine`): all, the odd
+        ones, or the odd ones less one at random per ``detection_block`` (detection lines
+        for ``fnsi-lab analyse``, docs/discovery.md).
+    detection_block : int
+        Odd lines per block of a random-odd grid (one left out per block).
+    levels : tuple of float
+        Force levels (RMS, unit of the force channel) of a level sweep: ``acquire`` then
+        records one file per level with the same phases (empty: one run at ``rms``).
+    drive : daq.drive.DriveDefinition or None
+        Set by ``excitation: {file: DRIVE.json}``: the exported drive this excitation
+        came from; its lines, phases and scaling are stored in the recording.
+    """
+
+    band_hz: tuple[float, float]
+    rms: float
+    samples_per_period: int
+    periods: int = 1
+    transient_periods: int = 0
+    realizations: int = 1
+    seed: int | None = 0
+    phases: Literal["random", "schroeder"] = "random"
+    grid: Literal["full", "odd", "random-odd"] = "full"
+    detection_block: int = 4
+    kind: Literal["multisine"] = "multisine"
+    levels: tuple[float, ...] = ()
+    drive: Any = field(default=None, compare=False, repr=False)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able form."""
+        out = {"kind": self.kind, "band_hz": list(self.band_hz), "rms": self.rms,
+               "samples_per_period": self.samples_per_period, "periods": self.periods,
+               "transient_periods": self.transient_periods,
+               "realizations": self.realizations, "seed": self.seed, "phases": self.phases}
+        if self.grid != "full":
+            out["grid"] = self.grid
+            if self.grid == "random-odd":
+                out["detection_block"] = self.detection_block
+        if self.levels:
+            out["levels"] = list(self.levels)
+        if self.drive is not None:
+            out.update(self.drive.recording_metadata())
+        return out

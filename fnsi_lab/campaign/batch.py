@@ -33,6 +33,7 @@ from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
 from fnsi_lab import __version__
 from fnsi_lab.errors import ConfigError, DataFileError, FnsiLabError
 from fnsi_lab.outputs import atomic_output, dumps
+from fnsi_lab.campaign.table import PlannedInput
 
 #: File types an input may have (what :func:`fnsi_lab.identify` reads).
 INPUT_SUFFIXES = (".mcap", ".npz", ".mat")
@@ -82,15 +83,6 @@ class BatchSpec:
         if self.auto:
             return fnsi_lab.identify(path, self.config, orders=self.orders)
         return fnsi_lab.identify(path, self.config, order=self.order)
-
-
-@dataclass(frozen=True)
-class PlannedInput:
-    """One input of the campaign and where its result goes."""
-
-    path: Path
-    sha256: str
-    result_path: Path
 
 
 # ---------------------------------------------------------------------------- planning

@@ -28,14 +28,22 @@ from __future__ import annotations
 
 import json
 import os
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 from fnsi_lab.errors import DataFileError
 from fnsi_lab.outputs import atomic_output, dumps
 
-if TYPE_CHECKING:  # pragma: no cover
-    from fnsi_lab.campaign.batch import PlannedInput
+
+@dataclass(frozen=True)
+class PlannedInput:
+    """One input of the campaign and where its result goes."""
+
+    path: Path
+    sha256: str
+    result_path: Path
+
 
 #: Schema metadata key of a campaign table.
 METADATA_KEY = b"fnsi_lab.campaign"
