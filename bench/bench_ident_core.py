@@ -35,10 +35,10 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from fnsi_lab.ident import fnsi, state_space  # noqa: E402
-from fnsi_lab.ident.basis import Nonlinearity  # noqa: E402
-from fnsi_lab.ident.coefficients import nonlinear_coefficients, summarize_coefficients  # noqa: E402
-from fnsi_lab.ident.periodic import FrequencyData, prepare_frequency_data  # noqa: E402
+from fnsi_lab.ident.core import fnsi, state_space  # noqa: E402
+from fnsi_lab.ident.core.basis import Nonlinearity  # noqa: E402
+from fnsi_lab.ident.core.coefficients import nonlinear_coefficients, summarize_coefficients  # noqa: E402
+from fnsi_lab.ident.core.periodic import FrequencyData, prepare_frequency_data  # noqa: E402
 
 RESULTS = Path(__file__).with_name("RESULTS.md")
 SECTION = "## FNSI core"

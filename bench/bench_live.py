@@ -163,7 +163,7 @@ def main_bench(argv=None) -> int:
                     help="pacing of the latency run (1 = real time, the honest figure)")
     ap.add_argument("--results", action="store_true", help="append to bench/RESULTS.md")
     args = ap.parse_args(argv)
-    from fnsi_lab.ident.options import parse_orders
+    from fnsi_lab.ident.robust.options import parse_orders
 
     orders = parse_orders(args.orders)
     from fnsi_lab.blas import limit_blas_threads
@@ -206,7 +206,7 @@ def main_bench(argv=None) -> int:
         ("latency, worst", f"{worst:.2f} s", f"{worst / 2.0:.2f}", f"{worst / period_s:.2f}"),
         ("service + Rerun overhead (latency - identification), median",
          f"{float(np.median(lats - np.asarray(lat['ident_s'][:len(lats)]))):.3f} s", "", ""),
-        ("identification time (ident.auto), median in the live run",
+        ("identification time (ident.robust.auto), median in the live run",
          f"{np.median(lat['ident_s']):.2f} s", "", ""),
         ("identification alone, all periods", f"{t_ident:.2f} s", "", ""),
         ("replay: ReplaySource read", f"{speeds['source']:.0f}x real time",

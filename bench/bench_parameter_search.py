@@ -47,7 +47,7 @@ import fnsi_lab  # noqa: E402
 from fnsi_lab.daq.multisine import multisine  # noqa: E402
 from fnsi_lab.daq.sim import lumped_model, simulate  # noqa: E402
 from fnsi_lab.daq.sim.smallsat import DEFAULT_CLEARANCES, NC2Z_CONTACT, smallsat_model  # noqa: E402
-from fnsi_lab.ident.basis import ParameterSpace  # noqa: E402
+from fnsi_lab.ident.core.basis import ParameterSpace  # noqa: E402
 from fnsi_lab.ident.config import load_ident_config, packaged_config  # noqa: E402
 
 

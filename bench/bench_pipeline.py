@@ -15,7 +15,7 @@ The SmallSat sources go through :func:`fnsi_lab.identify`, the one entry point (
 the NC2-Z basis, the coefficient spectra of the answer), and the total includes those
 steps. The synthetic data exist only as frequency-domain spectra (no time record for
 ``fnsi_lab.identify`` to read, and no basis functions to evaluate), so they are given to
-the pipeline's core, :func:`fnsi_lab.ident.auto.identify_auto`, directly.
+the pipeline's core, :func:`fnsi_lab.ident.robust.auto.identify_auto`, directly.
 """
 
 from __future__ import annotations
@@ -41,8 +41,8 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import fnsi_lab  # noqa: E402
-from fnsi_lab.ident import auto  # noqa: E402
-from fnsi_lab.ident.periodic import FrequencyData  # noqa: E402
+from fnsi_lab.ident.robust import auto  # noqa: E402
+from fnsi_lab.ident.core.periodic import FrequencyData  # noqa: E402
 
 TABLE1 = [(10.67, 5.34), (11.01, 5.58), (28.26, 9.79), (28.41, 10.62), (30.11, 7.03),
           (30.52, 15.54), (31.59, 2.07), (32.62, 2.25), (37.47, 2.27), (38.26, 2.33),
@@ -176,7 +176,7 @@ def write_results(a) -> int:
     L = [f"## Robust pipeline ({stamp})", "",
          f"`python bench/bench_pipeline.py --write`: the robust pipeline on 39 channels "
          f"(SmallSat: `fnsi_lab.identify`, preparation of the spectra and the answer's "
-         f"coefficients included in the total; synthetic spectra: `ident.auto.identify_auto`), "
+         f"coefficients included in the total; synthetic spectra: `ident.robust.auto.identify_auto`), "
          f"orders 2..60 (one QR + one SVD, 59 models with B/D least squares, information "
          f"criterion, stabilisation), MDI and reduction at order {a.reduce_at}. Budget: one "
          f"multisine period (8192 samples at 1 kHz = 8.19 s); goal 2 s. {a.repeat} runs per "
@@ -194,9 +194,9 @@ def write_results(a) -> int:
                  f"{tot[len(tot) // 2] / 8.192:.2f} | {st['subspace']:.3f} | "
                  f"{st['sweep']:.3f} | {st['ic_stabilisation']:.3f} | {st['mdi']:.4f} | "
                  f"{st['reduction']:.3f} |")
-    L += ["", "- The sweep uses `ident.auto.fast_estimate_bd` (unweighted normal equations in "
+    L += ["", "- The sweep uses `ident.robust.auto.fast_estimate_bd` (unweighted normal equations in "
           "modal coordinates, one `(F, m_e n)^H (F, m_e n)` product per order; agrees with "
-          "`ident.fnsi.estimate_bd` to 1e-14). With a noise covariance the sweep still uses it "
+          "`ident.core.fnsi.estimate_bd` to 1e-14). With a noise covariance the sweep still uses it "
           "(B, D only feed V(n); A, C come from the weighted SVD) and the selected and MDI "
           "models are re-estimated with the core's weighted routine (inside the 'MDI' column).",
           "- Multi-threaded OpenBLAS on this loaded 2-core machine was 10-40x slower for the "

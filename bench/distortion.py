@@ -154,7 +154,7 @@ def aircraft(tmp, quick):
 
 def false_alarms(n_records):
     from fnsi_lab.daq.multisine import multisine
-    from fnsi_lab.ident.distortion import analyse_arrays
+    from fnsi_lab.ident.core.distortion import analyse_arrays
     R, P, n = 3, 4, 1024
     ms = multisine(n, 256.0, (2, 60), 1.0, n_periods=P, n_realizations=R, grid="random-odd")
     u0 = ms.signal.reshape(R, P, n)

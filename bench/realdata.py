@@ -165,7 +165,7 @@ def lab_stop(layout, seed=0):
     from fnsi_lab.daq.multisine import multisine
     from fnsi_lab.daq.sim import lumped_model
     from fnsi_lab.daq.sim.lab import LabRealism, lab_experiment
-    from fnsi_lab.ident.basis import ParameterSpace
+    from fnsi_lab.ident.core.basis import ParameterSpace
     from fnsi_lab.ident.config import load_ident_config, packaged_config
 
     quantity, periods, R, hum_hz = STOP_LAYOUTS[layout]

@@ -157,7 +157,7 @@ def smallsat_frequency_data(level: str = "100N", n_channels: int = 39, snr_db: f
     """FrequencyData of the simulated SmallSat and the channel names, prepared exactly as
     :func:`fnsi_lab.identify` prepares them (for data-only uses: the 1 N FRF of Fig. 11)."""
     from fnsi_lab.api import load_config
-    from fnsi_lab.ident.io import input_from_arrays
+    from fnsi_lab.ident.core.io import input_from_arrays
     from fnsi_lab.ident.session import prepare_session
     arrays, chans, info = smallsat_arrays(level, n_channels, snr_db, seed, noise_seed,
                                           transient_periods, steady_periods)
@@ -483,7 +483,7 @@ def run(snr_db=None, figures=True, steady_periods=None, quick=False):
     r38 = identify(a39, cfg, reduce_at=38).auto
     c38 = coefficient_sets(r38, d39)
     md = r38.modal_dominancy
-    from fnsi_lab.ident.mdi import largest_gap_threshold
+    from fnsi_lab.ident.robust.mdi import largest_gap_threshold
     thr_inf = largest_gap_threshold(md.values["hinf"], candidates=r38.candidates)
     truth = np.array([is_physical_truth(f, z) for f, z in zip(md.frequency_hz, md.damping_ratio)])
     tab_h2, rows_h2 = _confusion(r38, md.values["h2"], r38.physical)
@@ -537,7 +537,7 @@ def run(snr_db=None, figures=True, steady_periods=None, quick=False):
                 d39.frequencies_hz[exn], h_nl, IMG / f"fig11_frf{sfx}.png")
     # are the modes in the models at all? Table-1 modes within 0.5 % / 5 % among the in-band
     # poles of the full 39-channel models, orders 20..80 (no classification involved)
-    from fnsi_lab.ident import fnsi
+    from fnsi_lab.ident.core import fnsi
     dec = fnsi.subspace_decomposition(d39, max_order=80)
     present = {}
     for n in range(20, 81, 12):

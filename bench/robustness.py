@@ -48,11 +48,11 @@ sys.path.insert(0, str(ROOT))
 from fnsi_lab.daq.multisine import multisine  # noqa: E402
 from fnsi_lab.daq.sim.model import StructuralModel  # noqa: E402
 from fnsi_lab.daq.sim.nonlinear import NonlinearElement  # noqa: E402
-from fnsi_lab.ident.basis import Nonlinearity, ParameterSpace  # noqa: E402
+from fnsi_lab.ident.core.basis import Nonlinearity, ParameterSpace  # noqa: E402
 from fnsi_lab.ident.errors import NotIdentifiableError  # noqa: E402
 from fnsi_lab.ident.config import IdentConfig, InputSpec  # noqa: E402
-from fnsi_lab.ident.io import input_from_arrays  # noqa: E402
-from fnsi_lab.ident.options import AutoOptions  # noqa: E402
+from fnsi_lab.ident.core.io import input_from_arrays  # noqa: E402
+from fnsi_lab.ident.robust.options import AutoOptions  # noqa: E402
 from fnsi_lab.ident.pipeline import identify_input  # noqa: E402
 
 

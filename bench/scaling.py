@@ -108,7 +108,7 @@ def smallsat_arrays(n_channels: int = 39, realisations: int = 1, periods: int = 
         ``input_channels``: the user-data format of docs/ident.md.
     """
     from reproduce_paper import _simulate
-    from fnsi_lab.ident.periodic import interpolate_periodic
+    from fnsi_lab.ident.core.periodic import interpolate_periodic
     factor = int(round(fs / fs_sim))
     if abs(factor * fs_sim - fs) > 1e-9:
         raise ValueError(f"fs={fs} is not a multiple of the simulated {fs_sim} Hz")
@@ -175,7 +175,7 @@ def run_case(case: dict) -> dict:
     import fnsi_lab
     from reproduce_paper import match_modes
     if case.get("every_channel"):
-        from fnsi_lab.ident import subspace
+        from fnsi_lab.ident.core import subspace
         subspace.OUTPUT_RANK_MARGIN = 10 ** 9  # default_output_rank -> None: no compression
     arrays = smallsat_arrays(case.get("channels", 39), case.get("realisations", 1),
                              case.get("periods", 1), case.get("fs", FS), case.get("n", N),

@@ -115,7 +115,7 @@ def random_odd_lines(band_lines: np.ndarray, detection_block: int = 4,
         complete block is left out, chosen at random (an incomplete last block is kept
         whole). Two detection lines are never neighbours: the excited grid then has no gap
         wider than two odd steps, which the line detection from a measured drive
-        (:func:`ident.excitation.detect_excited_lines`) bridges.
+        (:func:`ident.core.excitation.detect_excited_lines`) bridges.
     seed : int or None
         The choice is drawn from ``default_rng([seed, 1])`` (None: unpredictable), a stream
         of its own (the phase draw of ``seed`` is not shifted by it).
@@ -175,7 +175,7 @@ def multisine(samples_per_period: int, sample_rate_hz: float, band_hz: tuple[flo
         random-odd multisine (:func:`random_odd_lines`): the odd lines of the band less one
         chosen at random in every block of ``detection_block`` consecutive odd lines. The
         odd lines left out (odd detection lines) then show the odd-order distortion, the even
-        lines the even-order one (the fast method of :mod:`ident.distortion`).
+        lines the even-order one (the fast method of :mod:`ident.core.distortion`).
     detection_block : int, optional
         Odd lines per block of a random-odd grid, one of which is left out (4: a quarter of
         the odd lines are detection lines, Pintelon and Schoukens' usual choice).

@@ -30,7 +30,7 @@ def __getattr__(name: str) -> Any:
 
         return getattr(api, name)
     if name in ("Mode", "Coefficient"):   # the answer's records (docs/api.md, "The result")
-        from fnsi_lab.ident import result
+        from fnsi_lab.ident.core import result
 
         return getattr(result, name)
     if name == "validate_model":   # fnsi_lab.validate is the YAML helper module

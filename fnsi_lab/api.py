@@ -62,7 +62,7 @@ def load_config(config: Any) -> Any:
 
 
 def _as_input(source: Any, samples_per_period: int | None) -> Any:
-    from fnsi_lab.ident.io import IdentInput, input_from_arrays
+    from fnsi_lab.ident.core.io import IdentInput, input_from_arrays
     from fnsi_lab.inputs import load_input
 
     if isinstance(source, IdentInput):
@@ -103,7 +103,7 @@ def identify(source: Any, config: Any = None, *, order: int | None = None,
     source : str, path, mapping or IdentInput
         An fnsi-lab recording (``.mcap``), an array file (``.npz``/``.mat``: ``u``, ``y``,
         ``fs``, optional ``N``, ``channels``, ...; docs/ident.md), the same arrays as a
-        mapping, or an :class:`~fnsi_lab.ident.io.IdentInput`.
+        mapping, or an :class:`~fnsi_lab.ident.core.io.IdentInput`.
     config : str, path, mapping or IdentConfig, optional
         See :func:`load_config`. None: the excited band, the driving point where a
         recording's channel table puts an output at the force's node and direction, and for

@@ -90,10 +90,10 @@ def check_order(value: Any, field: str = "order") -> int | None:
 
 def check_orders(value: Any, field: str = "orders") -> Any:
     """An order sweep (``'2:60'``, ``'2:60:2'``, ``'4,6,8'`` or a sequence), validated by
-    the one order syntax (:func:`fnsi_lab.ident.options.parse_orders`); returned as given."""
+    the one order syntax (:func:`fnsi_lab.ident.robust.options.parse_orders`); returned as given."""
     if value is None:
         return None
-    from fnsi_lab.ident.options import parse_orders
+    from fnsi_lab.ident.robust.options import parse_orders
 
     try:
         parse_orders(value)

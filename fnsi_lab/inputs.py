@@ -1,8 +1,8 @@
 """Reading identification inputs from files: the edge between recordings and ``ident``.
 
 :func:`load_input` turns an fnsi-lab MCAP recording, an ``.npz`` file or a MATLAB ``.mat``
-file into the arrays of :class:`fnsi_lab.ident.io.IdentInput` (the array format is documented
-in :mod:`fnsi_lab.ident.io` and docs/ident.md); :func:`input_from_record` does the same for a
+file into the arrays of :class:`fnsi_lab.ident.core.io.IdentInput` (the array format is documented
+in :mod:`fnsi_lab.ident.core.io` and docs/ident.md); :func:`input_from_record` does the same for a
 periodic record assembled in memory (the live service). ``ident`` itself never opens a file.
 """
 
@@ -15,8 +15,8 @@ from typing import Any
 import numpy as np
 
 from fnsi_lab.ident.errors import IdentDataError
-from fnsi_lab.ident.io import IdentInput, input_from_arrays
-from fnsi_lab.ident.periodic import OUTPUT_QUANTITIES
+from fnsi_lab.ident.core.io import IdentInput, input_from_arrays
+from fnsi_lab.ident.core.periodic import OUTPUT_QUANTITIES
 
 __all__ = ["load_input", "input_from_record"]
 

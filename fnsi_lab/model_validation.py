@@ -2,10 +2,10 @@
 
 :func:`validate_model` reads an ``ident --json`` result (the model, its basis and how it
 processed its record: ``state_space``, ``nonlinearities``, ``processing``; see
-:mod:`fnsi_lab.ident.model_json`) and a record in any format ``ident`` reads (``.mcap``,
+:mod:`fnsi_lab.ident.core.model_json`) and a record in any format ``ident`` reads (``.mcap``,
 ``.npz``, ``.mat``; TDMS/UFF/CSV after ``fnsi-lab import``), simulates the nonlinear model
 and its underlying linear model with the record's measured forces
-(:mod:`fnsi_lab.ident.validation`), and returns per output the RMS of the measured output
+(:mod:`fnsi_lab.ident.refine.validation`), and returns per output the RMS of the measured output
 and of both simulation errors. docs/validate.md explains the method and the figures.
 """
 
@@ -41,7 +41,7 @@ class ValidationResult:
         ``linear_fit_error_db`` when the result holds the linear fit of the same data
         (``nonlinear_vs_linear.linear_state_space``).
     method : {'harmonic balance', 'time integration'}
-    simulation : ident.validation.SimulatedOutputs
+    simulation : ident.refine.validation.SimulatedOutputs
         The spectra (for figures).
     info : dict
         ``result``, ``record``, ``band_hz``, ``n_periods``, ``transient_periods``,
@@ -157,10 +157,10 @@ def validate_model(result: Any, record: Any, *, method: str = "auto",
         Unreadable result or record, a result without a model, channels or sample rate
         that do not match, time integration of velocity/acceleration outputs with a basis.
     """
-    from fnsi_lab.ident.io import IdentInput, select_channels
-    from fnsi_lab.ident.model_json import basis_from_json, model_from_json
-    from fnsi_lab.ident.periodic import prepare_frequency_data
-    from fnsi_lab.ident.validation import (balance_outputs, output_errors, prediction_band,
+    from fnsi_lab.ident.core.io import IdentInput, select_channels
+    from fnsi_lab.ident.core.model_json import basis_from_json, model_from_json
+    from fnsi_lab.ident.core.periodic import prepare_frequency_data
+    from fnsi_lab.ident.refine.validation import (balance_outputs, output_errors, prediction_band,
                                            time_outputs)
     from fnsi_lab.inputs import load_input
 

@@ -1,10 +1,10 @@
 """The one entry point of the distortion analysis (``fnsi-lab analyse``, ``fnsi_lab.analyse``).
 
-:func:`analyse_inputs` takes periodic inputs (:class:`ident.io.IdentInput`, one per record)
+:func:`analyse_inputs` takes periodic inputs (:class:`ident.core.io.IdentInput`, one per record)
 and an optional ident config, picks the input channel and the outputs, drops the transient
 periods, finds the excited lines when the record does not carry them, and calls
-:func:`ident.distortion.analyse_arrays` per record; several records are then compared by
-level (:func:`ident.distortion.compare_levels`). Arrays only: files are read at the edge
+:func:`ident.core.distortion.analyse_arrays` per record; several records are then compared by
+level (:func:`ident.core.distortion.compare_levels`). Arrays only: files are read at the edge
 (:mod:`fnsi_lab.inputs`).
 """
 
@@ -17,11 +17,11 @@ from typing import Sequence
 import numpy as np
 
 from fnsi_lab.ident.config import IdentConfig
-from fnsi_lab.ident.distortion import (DEFAULT_ALPHA, RecordAnalysis, analyse_arrays,
+from fnsi_lab.ident.core.distortion import (DEFAULT_ALPHA, RecordAnalysis, analyse_arrays,
                                        compare_levels)
 from fnsi_lab.ident.errors import IdentDataError
-from fnsi_lab.ident.excitation import detect_excited_lines
-from fnsi_lab.ident.io import IdentInput, select_channels
+from fnsi_lab.ident.core.excitation import detect_excited_lines
+from fnsi_lab.ident.core.io import IdentInput, select_channels
 
 __all__ = ["DistortionReport", "analyse_inputs", "analyse_input"]
 
@@ -38,7 +38,7 @@ class DistortionReport:
     records : list of RecordAnalysis
         In the order given.
     levels : dict or None
-        :func:`ident.distortion.compare_levels` (two records or more).
+        :func:`ident.core.distortion.compare_levels` (two records or more).
     timings_s : dict
     """
 

@@ -205,10 +205,10 @@ def _print_refinement(res: dict, out=None) -> None:
 def _print_auto_summary(res: Any, out=None, warnings: list | tuple = (),
                         refined: bool = False, units: dict | None = None,
                         fates: list | None = None) -> None:
-    """Summary of a robust-pipeline result (:class:`~fnsi_lab.ident.auto_result.AutoResult`);
+    """Summary of a robust-pipeline result (:class:`~fnsi_lab.ident.robust.auto_result.AutoResult`);
     ``refined``: the answer is the output-error refinement's (printed after); ``units``:
     the JSON's ``units`` block (coefficient units); ``fates``: each MDI row's fate
-    (:mod:`ident.pole_fate`, the JSON's ``mdi[].fate``)."""
+    (:mod:`ident.robust.pole_fate`, the JSON's ``mdi[].fate``)."""
     out = out or sys.stdout
     coefficient_units = (units or {}).get("coefficients") or {}
     ic = res.information_criterion
@@ -218,7 +218,7 @@ def _print_auto_summary(res: Any, out=None, warnings: list | tuple = (),
           f"{res.modal_dominancy.band_hz[0]:g}-{res.modal_dominancy.band_hz[1]:g} Hz): "
           f"confidence {res.confidence['level']}", file=out)
     print("  " + res.confidence["statement"], file=out)
-    from fnsi_lab.ident.pole_fate import fate_label, pole_fates
+    from fnsi_lab.ident.robust.pole_fate import fate_label, pole_fates
 
     rows = res.mdi_table()
     fates = fates or pole_fates(rows, res.confidence)

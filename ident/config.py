@@ -34,7 +34,7 @@ field and the fix; unknown keys are rejected (typos). Example (3-DOF chain, rela
       top_n: 3                   # e.g. keep exactly the 3 most dominant modes
       orders: "2:40"             # order sweep (same syntax as --orders)
 
-The ``auto:`` section is parsed here, into :class:`fnsi_lab.ident.options.AutoOptions`
+The ``auto:`` section is parsed here, into :class:`fnsi_lab.ident.robust.options.AutoOptions`
 (``IdentConfig.auto``), whatever module is imported first.
 """
 
@@ -47,14 +47,14 @@ from typing import Any, Literal
 
 from fnsi_lab.errors import ConfigError
 from fnsi_lab.validate import Section, load_yaml
-from fnsi_lab.ident.basis import KINDS, Nonlinearity, ParameterSpace
+from fnsi_lab.ident.core.basis import KINDS, Nonlinearity, ParameterSpace
 from fnsi_lab.ident.errors import IdentConfigError, IdentError
-from fnsi_lab.ident.options import AutoOptions, parse_orders
-from fnsi_lab.ident.periodic import OUTPUT_QUANTITIES, OutputQuantity
+from fnsi_lab.ident.robust.options import AutoOptions, parse_orders
+from fnsi_lab.ident.core.periodic import OUTPUT_QUANTITIES, OutputQuantity
 
 WEIGHTINGS = ("auto", "none", "noise")
 #: ``refine:`` choices: ``auto`` refines noisy data with basis functions by their output error
-#: (:mod:`ident.output_error`), ``output-error`` always (unweighted without a noise
+#: (:mod:`ident.refine.output_error`), ``output-error`` always (unweighted without a noise
 #: estimate), ``none`` keeps FNSI's model.
 REFINEMENTS = ("auto", "output-error", "none")
 

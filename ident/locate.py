@@ -336,7 +336,7 @@ def _pair_coordinates(data, a_d: np.ndarray, c_d: np.ndarray, weighted: bool):
     basis = basis / np.linalg.norm(basis, axis=0)
     Y = data.Y
     # the variances only: a full covariance from a few periods is rank-deficient (P - 1 < p;
-    # the pipeline weights by the variances then too, ident.fnsi._inverse_covariance)
+    # the pipeline weights by the variances then too, ident.core.fnsi._inverse_covariance)
     var_y = data.noise_var if weighted else None
     if var_y is None:
         ginv = np.linalg.pinv(basis.T @ basis)
@@ -530,7 +530,7 @@ def _block_rows(data, order: int) -> int | None:
     """Block rows of the refinement's decompositions: the default for few outputs (they need
     many), else the observability rule plus margin, at least 8 (a fixed-order fit, no sweep:
     on the SmallSat i = 8 gave the same ranking as the default 20 in a quarter of the time)."""
-    from fnsi_lab.ident.order_selection import FEW_OUTPUTS
+    from fnsi_lab.ident.robust.order_selection import FEW_OUTPUTS
 
     p = data.n_outputs
     if p <= FEW_OUTPUTS:
@@ -548,13 +548,13 @@ def candidate_input(data, candidate: Mapping[str, float], *, knots: int = 0):
     candidate : mapping str -> float
     knots : int
         Spline hinges over the measured relative displacement added to the generic columns
-        (:func:`ident.spline.hinge_columns`; 0: the generic columns alone).
+        (:func:`ident.core.spline.hinge_columns`; 0: the generic columns alone).
 
     Returns
     -------
     FrequencyData
     """
-    from fnsi_lab.ident.spline import hinge_columns, spread_knots
+    from fnsi_lab.ident.core.spline import hinge_columns, spread_knots
 
     motion = data.motion
     chans = list(motion.channels)
@@ -598,7 +598,7 @@ def refine_candidate(data, candidate: Mapping[str, float], *, order: int, weight
         Residual sum of squares of the model's steady state (noise variances when weighted)
         and the number of nonlinear columns.
     """
-    from fnsi_lab.ident.fnsi import model_at_order, subspace_decomposition
+    from fnsi_lab.ident.core.fnsi import model_at_order, subspace_decomposition
 
     d = candidate_input(data, candidate, knots=knots)
     dec = subspace_decomposition(d, max_order=order, weighted=weighted, block_rows=block_rows)
@@ -676,8 +676,8 @@ def refine_locations(data, screened: "Localisation", *, order: int, weighted: bo
 def _linear_order(data, weighted: bool, max_order: int = 40) -> int:
     """Order of the linear model when the config gives none: the minimum of the
     minimum-description-length criterion over the even orders up to ``max_order``."""
-    from fnsi_lab.ident.fnsi import model_at_order, subspace_decomposition
-    from fnsi_lab.ident.order_selection import information_criterion
+    from fnsi_lab.ident.core.fnsi import model_at_order, subspace_decomposition
+    from fnsi_lab.ident.robust.order_selection import information_criterion
 
     top = int(min(max_order, 2 * data.n_lines // 4))
     dec = subspace_decomposition(data, max_order=top, weighted=weighted)
@@ -723,9 +723,9 @@ def locate_input(inp, cfg, *, candidates: Any = "all", order: int | None = None,
     """
     from dataclasses import replace as _replace
 
-    from fnsi_lab.ident.basis import Nonlinearity
-    from fnsi_lab.ident.fnsi import model_at_order, subspace_decomposition
-    from fnsi_lab.ident.periodic import as_displacement_outputs
+    from fnsi_lab.ident.core.basis import Nonlinearity
+    from fnsi_lab.ident.core.fnsi import model_at_order, subspace_decomposition
+    from fnsi_lab.ident.core.periodic import as_displacement_outputs
     from fnsi_lab.ident.session import prepare_session
 
     t0 = time.perf_counter()
@@ -779,8 +779,8 @@ def with_located_element(inp: Any, cfg: Any, *,
     """
     from dataclasses import replace
 
-    from fnsi_lab.ident.basis import Nonlinearity
-    from fnsi_lab.ident.spline import AUTO_KNOTS
+    from fnsi_lab.ident.core.basis import Nonlinearity
+    from fnsi_lab.ident.core.spline import AUTO_KNOTS
     located = locate_input(inp, cfg, progress=progress)
     best = located.located
     if best is None:

@@ -1,6 +1,6 @@
 """One identification from arrays to answer: the entry point every caller shares.
 
-:func:`identify_input` takes periodic arrays (:class:`~fnsi_lab.ident.io.IdentInput`) and a
+:func:`identify_input` takes periodic arrays (:class:`~fnsi_lab.ident.core.io.IdentInput`) and a
 configuration (:class:`~fnsi_lab.ident.config.IdentConfig`) and returns an
 :class:`Identification`: the model at a fixed order, or the robust automatic pipeline
 (information criterion, stabilisation, modal dominancy index, reduction) when no order is
@@ -22,31 +22,31 @@ from typing import Any, Callable, Mapping, NamedTuple, Sequence
 
 import numpy as np
 
-from fnsi_lab.ident.auto_result import AutoResult
-from fnsi_lab.ident.basis import ESTIMABLE, Nonlinearity
-from fnsi_lab.ident.coefficients import (CoefficientSpectra, coefficient_spread,
+from fnsi_lab.ident.robust.auto_result import AutoResult
+from fnsi_lab.ident.core.basis import ESTIMABLE, Nonlinearity
+from fnsi_lab.ident.core.coefficients import (CoefficientSpectra, coefficient_spread,
                                          nonlinear_coefficients, spread_function,
                                          summarize_coefficients)
 from fnsi_lab.ident.config import IdentConfig
 from fnsi_lab.ident.errors import IdentError, IdentWarning
-from fnsi_lab.ident.fnsi import (StateSpaceModel, SubspaceDecomposition, model_at_order,
+from fnsi_lab.ident.core.fnsi import (StateSpaceModel, SubspaceDecomposition, model_at_order,
                                  subspace_decomposition)
-from fnsi_lab.ident.io import IdentInput
-from fnsi_lab.ident.modal import ModalModel
-from fnsi_lab.ident.model_json import processing_json, state_space_json
-from fnsi_lab.ident.nested import NestedTest
-from fnsi_lab.ident.output_error import (MAX_MISFIT, OutputErrorFit, omitted_mode_evidence,
+from fnsi_lab.ident.core.io import IdentInput
+from fnsi_lab.ident.refine.modal import ModalModel
+from fnsi_lab.ident.core.model_json import processing_json, state_space_json
+from fnsi_lab.ident.robust.nested import NestedTest
+from fnsi_lab.ident.refine.output_error import (MAX_MISFIT, OutputErrorFit, omitted_mode_evidence,
                                         refine_output_error, refinement_case)
-from fnsi_lab.ident.parameter_search import DEFAULT_SEARCH_ORDER
-from fnsi_lab.ident.periodic import FrequencyData, data_report, prepare_frequency_data, with_basis
-from fnsi_lab.ident.reduction import reduce_model
-from fnsi_lab.ident.regressors import regressor_conditioning
+from fnsi_lab.ident.refine.parameter_search import DEFAULT_SEARCH_ORDER
+from fnsi_lab.ident.core.periodic import FrequencyData, data_report, prepare_frequency_data, with_basis
+from fnsi_lab.ident.robust.reduction import reduce_model
+from fnsi_lab.ident.core.regressors import regressor_conditioning
 from fnsi_lab.ident.request import (DEFAULT_ORDERS, IdentRequest, basis_from_truth,
                                     default_config, resolve_request)
-from fnsi_lab.ident.result import Coefficient, Mode
-from fnsi_lab.ident.verdict import coefficient_verdict, not_supported
-from fnsi_lab.ident.units import add_coefficient_units, result_units
-from fnsi_lab.ident.pole_fate import result_fates
+from fnsi_lab.ident.core.result import Coefficient, Mode
+from fnsi_lab.ident.robust.verdict import coefficient_verdict, not_supported
+from fnsi_lab.ident.core.units import add_coefficient_units, result_units
+from fnsi_lab.ident.robust.pole_fate import result_fates
 from fnsi_lab.ident.session import (IdentSession, apply_recording_truth, prepare_session)
 
 __all__ = ["IdentSession", "Identification", "Mode", "Coefficient", "prepare_session",
@@ -64,7 +64,7 @@ def _structural_start(session: IdentSession, ident: "_Fit") -> StateSpaceModel:
     crawled along them (3-DOF chain, 1 % noise: 30 steps, misfit 1.50 -> 1.39, gaps -1 / -2 %
     where the three structural modes alone converge in 5-6 steps to 1.11-1.13 and 0.7 %).
     So the start keeps the physical modes of the model at the MDI order, with ``B``, ``D``
-    re-estimated (:func:`ident.reduction.reduce_model`).
+    re-estimated (:func:`ident.robust.reduction.reduce_model`).
     """
     auto = ident.auto
     if auto is None or not np.any(auto.physical):
@@ -151,7 +151,7 @@ def _fit_without_split_modes(session: IdentSession, ident: "_Fit",
     second pole near a mode absorbs; refined with it, the two poles crawl towards each
     other for dozens of steps (5-DOF chain, 40 dB, gaps `auto`: 30 steps, 9 s) where the
     fit without the weaker one converges in 7. A fit without them that leaves more than
-    :data:`ident.output_error.MAX_MISFIT` is not kept either.
+    :data:`ident.refine.output_error.MAX_MISFIT` is not kept either.
     """
     weaker = _split_candidates(ident)
     start = _merged_start(session, ident, weaker) if weaker else None
@@ -192,10 +192,10 @@ def _refine(session: IdentSession, ident: "_Fit") -> Any:
     measured motion's noise is a material part of FNSI's residual and the model otherwise
     explains the data (:func:`refinement_case`), and keeps
     it only if the refined model explains the outputs to their noise
-    (:data:`ident.output_error.MAX_MISFIT`); ``output-error`` always runs and keeps it. The
+    (:data:`ident.refine.output_error.MAX_MISFIT`); ``output-error`` always runs and keeps it. The
     refined basis parameters and basis columns replace the session's. The decision and its
     numbers go to ``session.evidence['output_error']``. Returns the
-    :class:`ident.output_error.OutputErrorFit` kept, or None.
+    :class:`ident.refine.output_error.OutputErrorFit` kept, or None.
     """
     cfg, data = session.config, session.data
     if cfg.refine == "none" or not cfg.nonlinearities:
@@ -284,7 +284,7 @@ def _conditioning(session: IdentSession):
 
 def _summaries(spectra: CoefficientSpectra | None,
                session: IdentSession | None = None) -> list[dict]:
-    """Per coefficient the summary dict with its verdict (:mod:`ident.verdict`)."""
+    """Per coefficient the summary dict with its verdict (:mod:`ident.robust.verdict`)."""
     if spectra is None:
         return []
     summaries = [s.to_dict() for s in summarize_coefficients(spectra)]
@@ -338,10 +338,10 @@ class Identification:
         The QR/SVD of a fixed-order identification.
     output_error : OutputErrorFit or None
         The output-error refinement that produced :attr:`model` from FNSI's
-        (:mod:`ident.output_error`); None when it did not run.
+        (:mod:`ident.refine.output_error`); None when it did not run.
     coefficient_spectra : CoefficientSpectra or None
         ``c_a(w)`` of :attr:`model` on every processed line.
-    nested : ident.nested.NestedTest or None
+    nested : ident.robust.nested.NestedTest or None
         The answer against the linear fit of the same data (its ``linear`` attribute holds
         that fit's :class:`Identification`); when the nonlinear terms are not supported,
         :attr:`modes` and the underlying linear FRF are the linear fit's.
@@ -379,7 +379,7 @@ class Identification:
 
     @property
     def coefficients(self) -> list[Coefficient]:
-        """Per coefficient a :class:`~fnsi_lab.ident.result.Coefficient`: ``name``,
+        """Per coefficient a :class:`~fnsi_lab.ident.core.result.Coefficient`: ``name``,
         ``value`` (the declared answer), ``mean_real``, ``std_real``, ``ls_value``,
         ``error_percent``, ``verdict``, ``unit`` ... (docs/ident.md), read as attributes or
         as keys (``c["value"]``)."""
@@ -417,7 +417,7 @@ class Identification:
     @property
     def modes(self) -> list[Mode]:
         """Physical modes of the answer, sorted by frequency, as
-        :class:`~fnsi_lab.ident.result.Mode`: ``frequency_hz``, ``damping_ratio``,
+        :class:`~fnsi_lab.ident.core.result.Mode`: ``frequency_hz``, ``damping_ratio``,
         ``stable``, ``shape`` (complex, one entry per output); the linear fit's when the
         nonlinear terms are not supported (:attr:`nested`)."""
         if self.nested is not None and self.linear_answer and self.nested.linear is not None:
@@ -429,7 +429,7 @@ class Identification:
 
     @property
     def units(self) -> dict:
-        """Units of the answer from the channel table (:func:`ident.units.result_units`):
+        """Units of the answer from the channel table (:func:`ident.core.units.result_units`):
         ``force``, ``output``, ``length``, ``frf``, ``channels``, ``coefficients``
         {name: unit}, ``assumed`` (no unit table: SI)."""
         s, data = self.session, self.data
@@ -439,7 +439,7 @@ class Identification:
     @property
     def spline_curves(self) -> list:
         """Force curves of the ``kind: spline`` elements with their bands and suggested
-        parametric forms (:func:`ident.spline.spline_curves`; empty without spline)."""
+        parametric forms (:func:`ident.core.spline.spline_curves`; empty without spline)."""
         return self._spline_curves({c.name: c.value for c in self.coefficients})
 
     def _spline_curves(self, values: dict[str, float]) -> list:
@@ -448,7 +448,7 @@ class Identification:
         if self.coefficient_spectra is None or not any(nl.kind == "spline" for nl in basis):
             return []
         if "spline_curves" not in self._cache:
-            from fnsi_lab.ident.spline import spline_curves
+            from fnsi_lab.ident.core.spline import spline_curves
             self._cache["spline_curves"] = spline_curves(basis, self.coefficient_spectra,
                                                          values, self.data.motion)
         return list(self._cache["spline_curves"])
@@ -459,7 +459,7 @@ class Identification:
         curves = self.spline_curves
         if not curves:
             return None
-        from fnsi_lab.ident.spline import suggested_config
+        from fnsi_lab.ident.core.spline import suggested_config
         raw = None
         if self.config.file and not self.config.file.startswith("<"):
             from fnsi_lab.validate import load_yaml
@@ -546,7 +546,7 @@ class Identification:
             out["parameter_search"] = {k: v for k, v in s.parameter_search.to_dict().items()
                                        if k != "estimates"}
         out["coefficient_spectra"] = _spectra_json(self.coefficient_spectra)
-        # the model itself, for fnsi-lab validate (ident/model_json.py, docs/validate.md)
+        # the model itself, for fnsi-lab validate (ident/core/model_json.py, docs/validate.md)
         out["state_space"] = state_space_json(model)
         out["processing"] = processing_json(
             s.config, s.config.transient_periods if s.config.transient_periods is not None
@@ -564,7 +564,7 @@ class Identification:
         out["units"] = units
         doc = add_coefficient_units(json_safe(out), units)
         for row, fate in zip(doc.get("mdi") or [], result_fates(doc)):
-            row["fate"] = fate  # one vocabulary for a pole's fate (ident.pole_fate)
+            row["fate"] = fate  # one vocabulary for a pole's fate (ident.robust.pole_fate)
         return doc
 
     def _fixed_order_dict(self) -> dict:
@@ -587,7 +587,7 @@ class Identification:
 def _config_mapping(cfg: IdentConfig) -> dict:
     """The main keys of a parsed config as YAML data (a config given as a mapping or whose
     file is gone): band, quantities, channels, periods and orders; nonlinearities are
-    added by :func:`ident.spline.suggested_config`."""
+    added by :func:`ident.core.spline.suggested_config`."""
     out: dict[str, Any] = {"band_hz": [float(v) for v in cfg.band_hz]}
     for key in ("samples_per_period", "transient_periods", "output_quantity", "order",
                 "max_order"):
@@ -692,8 +692,8 @@ def _fit(session: IdentSession, *, order: int | None, sweep: Sequence[int],
         max_order = max(int(order), max_order or cfg.max_order or int(order))
         t1 = time.perf_counter()
         if cfg.time_base == "auto" and session.data.output_quantity == "displacement":
-            # band-limited or bilinear line map: the one that fits (ident.time_base)
-            from fnsi_lab.ident.time_base import choose_time_base
+            # band-limited or bilinear line map: the one that fits (ident.core.time_base)
+            from fnsi_lab.ident.core.time_base import choose_time_base
             session.data, dec, model, choice = choose_time_base(
                 session.data, int(order), max_order=max_order, block_rows=block_rows,
                 weighted=session.weighted, d_zero=session.d_zero)
@@ -706,7 +706,7 @@ def _fit(session: IdentSession, *, order: int | None, sweep: Sequence[int],
         session.timings_s["model"] = time.perf_counter() - t1 - session.timings_s["decomposition"]
         return _Fit(model, "order", decomposition=dec)
     else:
-        from fnsi_lab.ident.auto import identify_auto
+        from fnsi_lab.ident.robust.auto import identify_auto
 
         options = replace(cfg.auto, d_zero=session.d_zero, weighted=session.weighted,
                           block_rows=block_rows or cfg.auto.block_rows)
@@ -818,7 +818,7 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
         if compare == "auto" and verdicts and all(v == "identified" for v in verdicts):
             # every coefficient determined: the test would only confirm it (chain, SmallSat,
             # Silverbox); it costs a second identification (docs/ident.md)
-            from fnsi_lab.ident.nested import weighted_residual
+            from fnsi_lab.ident.robust.nested import weighted_residual
 
             session.evidence["nonlinear_vs_linear"] = {
                 "decision": "nonlinear", "test": None,
@@ -850,9 +850,9 @@ def _compare_with_linear(session: IdentSession, model: StateSpaceModel, modes: S
                          block_rows: int | None) -> NestedTest | None:
     """The linear fit of the same data (same orders, weighting, ``D`` choice, basis removed)
     and the nested test of the answer (``model``, its physical ``modes`` and coefficient
-    ``verdicts``) against it (:mod:`ident.nested`); None when the linear fit fails (its
+    ``verdicts``) against it (:mod:`ident.robust.nested`); None when the linear fit fails (its
     reason goes to the warnings)."""
-    from fnsi_lab.ident.nested import nested_test
+    from fnsi_lab.ident.robust.nested import nested_test
 
     cfg = replace(session.config, nonlinearities=())
     linear_session = replace(session, config=cfg, data=with_basis(session.data, ()),

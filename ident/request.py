@@ -16,11 +16,11 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from fnsi_lab.ident.basis import Nonlinearity
+from fnsi_lab.ident.core.basis import Nonlinearity
 from fnsi_lab.ident.config import IdentConfig
 from fnsi_lab.ident.errors import IdentError
-from fnsi_lab.ident.io import IdentInput
-from fnsi_lab.ident.options import parse_orders
+from fnsi_lab.ident.core.io import IdentInput
+from fnsi_lab.ident.robust.options import parse_orders
 
 __all__ = ["DEFAULT_ORDERS", "IdentRequest", "resolve_request", "check_order",
            "default_config", "basis_from_truth"]
@@ -168,7 +168,7 @@ def _active_basis(basis: Sequence[Nonlinearity], inp: IdentInput,
     """
     if quantity != "displacement" or not basis:
         return tuple(basis)
-    from fnsi_lab.ident.basis import evaluate_basis
+    from fnsi_lab.ident.core.basis import evaluate_basis
 
     q = np.asarray(inp.y)[0, -1]  # last period of the first realization, (N, p)
     kept = []

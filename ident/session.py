@@ -1,9 +1,9 @@
 """An identification's session: the configured channels of the data as frequency data.
 
 :func:`prepare_session` selects the configured channels, fills a simulated recording's truth
-(:func:`apply_recording_truth`), builds the frequency data (:mod:`ident.periodic`), places
+(:func:`apply_recording_truth`), builds the frequency data (:mod:`ident.core.periodic`), places
 spline knots on the measured motion and estimates the basis parameters left to the data
-(:mod:`ident.parameter_search`). The entry point (:mod:`ident.pipeline`) and the
+(:mod:`ident.refine.parameter_search`). The entry point (:mod:`ident.pipeline`) and the
 localisation (:mod:`ident.locate`) both start from it.
 """
 
@@ -16,14 +16,14 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from fnsi_lab.ident.basis import Nonlinearity
+from fnsi_lab.ident.core.basis import Nonlinearity
 from fnsi_lab.ident.config import IdentConfig
 from fnsi_lab.ident.errors import IdentError, IdentWarning, NoExcitedLineError
-from fnsi_lab.ident.io import IdentInput, select_channels
-from fnsi_lab.ident.parameter_search import (DEFAULT_SEARCH_ORDER, ParameterSearchResult,
+from fnsi_lab.ident.core.io import IdentInput, select_channels
+from fnsi_lab.ident.refine.parameter_search import (DEFAULT_SEARCH_ORDER, ParameterSearchResult,
                                              estimate_basis_parameters, has_unknown_parameters)
-from fnsi_lab.ident.periodic import FrequencyData, prepare_frequency_data, with_basis
-from fnsi_lab.ident.spline import needs_knots, resolve_knots
+from fnsi_lab.ident.core.periodic import FrequencyData, prepare_frequency_data, with_basis
+from fnsi_lab.ident.core.spline import needs_knots, resolve_knots
 from fnsi_lab.progress import Progress
 
 __all__ = ["IdentSession", "prepare_session", "apply_recording_truth", "no_excited_line"]
@@ -110,7 +110,7 @@ def prepare_session(inp: IdentInput, cfg: IdentConfig, *, search_order: int | No
     """Select the configured channels and build the frequency data.
 
     Basis parameters left to the data (``clearances: auto``, ``exponent: auto``...) are
-    estimated here, before any identification (:mod:`ident.parameter_search`), at
+    estimated here, before any identification (:mod:`ident.refine.parameter_search`), at
     ``search_order`` (default the config's ``order``, else 30); with
     ``select_search_order`` that is the largest order, and the information criterion
     picks the order of the search (docs/ident.md, "Unknown basis parameters").
@@ -162,7 +162,7 @@ def prepare_session(inp: IdentInput, cfg: IdentConfig, *, search_order: int | No
         raise NoExcitedLineError(no_excited_line(data))
     weighted = cfg.weighting != "none"
     if cfg.weighting == "noise" and data.noise_cov is None:
-        if data.n_periods >= 2:  # ident.periodic.floor_noise: the spread is no noise
+        if data.n_periods >= 2:  # ident.core.periodic.floor_noise: the spread is no noise
             raise IdentError(
                 "weighting: noise has nothing to weight with: the period-to-period spread of "
                 "every output is below the resolution of a 24-bit record (noise-free data, "

@@ -114,12 +114,12 @@ class AutoIdentification:
 
     @property
     def result(self) -> Any:
-        """The robust pipeline's :class:`~fnsi_lab.ident.auto_result.AutoResult`."""
+        """The robust pipeline's :class:`~fnsi_lab.ident.robust.auto_result.AutoResult`."""
         return self.identification.auto
 
     @property
     def data(self) -> Any:
-        """The :class:`~fnsi_lab.ident.periodic.FrequencyData` identified."""
+        """The :class:`~fnsi_lab.ident.core.periodic.FrequencyData` identified."""
         return self.identification.data
 
 
@@ -160,7 +160,7 @@ def config_identifier(config: Any = None, *, truth: Mapping[str, Any] | None = N
     """
     from dataclasses import replace
 
-    from fnsi_lab.ident.options import parse_orders
+    from fnsi_lab.ident.robust.options import parse_orders
     from fnsi_lab.ident.pipeline import identify_request
     from fnsi_lab.ident.request import DEFAULT_ORDERS, resolve_request
 

@@ -168,7 +168,7 @@ class IdentService:
         N of the multisine.
     identify : callable
         ``identify(record) -> result`` on a :class:`~daq.recording.reader.PeriodicRecord`
-        (e.g. ``ident.auto``'s pipeline via :func:`replay.identifiers.auto_identifier`).
+        (e.g. ``ident.robust.auto``'s pipeline via :func:`replay.identifiers.auto_identifier`).
     on_update : callable, optional
         ``on_update(ServiceUpdate)``, called in the identifier thread (log to Rerun here).
     transient_periods : int

@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 import yaml
 
-from fnsi_lab.ident.basis import Nonlinearity
+from fnsi_lab.ident.core.basis import Nonlinearity
 from fnsi_lab.ident.config import parse_ident_config
 from fnsi_lab.ident.errors import IdentConfigError
-from fnsi_lab.ident.spline import SplineCurve, hinge_columns, suggest_parametric
+from fnsi_lab.ident.core.spline import SplineCurve, hinge_columns, suggest_parametric
 
 CLI = [sys.executable, "-m", "fnsi_lab"]
 #: The SmallSat's NC2-Z stop (docs/smallsat.md): clearances (mm) and contact stiffnesses (N/mm).
@@ -210,7 +210,7 @@ def test_friction_level_and_no_form_for_a_shapeless_curve():
     """A velocity curve of 40 N friction (steep ramp between +-1 mm/s, flat outside) gives
     Coulomb at 40 N; a curve no form explains gets 'none' with the closest form, and the
     config names a velocity element apart from the displacement one."""
-    from fnsi_lab.ident.spline import suggested_config
+    from fnsi_lab.ident.core.spline import suggested_config
 
     v = np.linspace(-0.02, 0.02, 201)
     f = 40 * np.clip(v / 1e-3, -1, 1)

@@ -1,4 +1,4 @@
-"""Distortion analysis (``fnsi-lab analyse``, :mod:`ident.distortion`): real files, real CLI.
+"""Distortion analysis (``fnsi-lab analyse``, :mod:`ident.core.distortion`): real files, real CLI.
 
 Cases: a linear lab simulation (every output linear), the real Silverbox record (odd
 distortion far above the noise), a lab Duffing at three levels (distortion and resonance rise
@@ -18,8 +18,8 @@ import numpy as np
 import pytest
 
 from fnsi_lab.daq.multisine import multisine, random_odd_lines, excited_lines
-from fnsi_lab.ident.distortion import analyse_arrays
-from fnsi_lab.ident.excitation import detect_excited_lines
+from fnsi_lab.ident.core.distortion import analyse_arrays
+from fnsi_lab.ident.core.excitation import detect_excited_lines
 
 ROOT = Path(__file__).resolve().parents[1]
 SILVERBOX = ROOT / "bench" / "data" / "silverbox-schroeder"

@@ -531,7 +531,7 @@ def test_too_many_transient_periods_names_the_field_and_the_fix(tmp_path):
 def test_an_order_above_the_decomposition_names_the_fix():
     """Was 'order 0 is outside 1..117 (max order of this decomposition)': no fix (the
     command line now refuses 0 itself; a too high order reaches the core from the API)."""
-    from fnsi_lab.ident import fnsi
+    from fnsi_lab.ident.core import fnsi
     from fnsi_lab.ident.errors import IdentError
 
     rng = np.random.default_rng(0)

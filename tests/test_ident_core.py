@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 import scipy.linalg as sla
 
-from fnsi_lab.ident import fnsi, state_space, weights
-from fnsi_lab.ident.basis import Nonlinearity, evaluate_basis
-from fnsi_lab.ident.coefficients import nonlinear_coefficients, summarize_coefficients
+from fnsi_lab.ident.core import fnsi, state_space, weights
+from fnsi_lab.ident.core.basis import Nonlinearity, evaluate_basis
+from fnsi_lab.ident.core.coefficients import nonlinear_coefficients, summarize_coefficients
 from fnsi_lab.ident.errors import ChannelError, IdentError, IdentWarning, NotIdentifiableError
-from fnsi_lab.ident.periodic import FrequencyData, prepare_frequency_data
+from fnsi_lab.ident.core.periodic import FrequencyData, prepare_frequency_data
 
 
 # ---------------------------------------------------------------------------- helpers

@@ -1,4 +1,4 @@
-"""Nested models (ident.nested): the nonlinear answer against the linear fit of the same data."""
+"""Nested models (ident.robust.nested): the nonlinear answer against the linear fit of the same data."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 import fnsi_lab
 from fnsi_lab.daq.multisine import multisine
 from fnsi_lab.daq.sim import lumped_model, simulate
-from fnsi_lab.ident.nested import match_modes, parameter_count
+from fnsi_lab.ident.robust.nested import match_modes, parameter_count
 
 FS, N, PERIODS = 1024.0, 4096, 6
 CUBIC = {"band_hz": [3, 120], "transient_periods": 1, "refine": "none",

@@ -1,4 +1,4 @@
-"""Noise estimates below the record resolution are not noise (ident.noise.resolution_variance).
+"""Noise estimates below the record resolution are not noise (ident.core.noise.resolution_variance).
 
 Regression: the simulated SmallSat with 2-8 noise-free steady periods was weighted by the
 period-to-period spread, which there is round-off and residual transient (1e-31 to 1e-19 of
@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fnsi_lab.ident.noise import RESOLUTION_BITS, resolution_variance
-from fnsi_lab.ident.periodic import floor_noise, prepare_frequency_data
+from fnsi_lab.ident.core.noise import RESOLUTION_BITS, resolution_variance
+from fnsi_lab.ident.core.periodic import floor_noise, prepare_frequency_data
 
 FS, N = 256.0, 1024
 
@@ -61,7 +61,7 @@ def test_noise_free_periods_give_no_weighting():
 
 def test_noisy_periods_are_untouched_and_a_clean_channel_is_floored(monkeypatch):
     # 80 dB below the RMS on every output: 1e3-1e4 times the floor, kept bit for bit
-    import fnsi_lab.ident.periodic as periodic
+    import fnsi_lab.ident.core.periodic as periodic
     noisy, _ = _data(4, [1e-4, 1e-4, 1e-4])
     assert noisy.noise_resolved.all()
     with monkeypatch.context() as m:
@@ -148,7 +148,7 @@ def test_weighting_noise_on_noise_free_periods_says_why():
 
 
 def test_report_says_the_data_are_noise_free():
-    from fnsi_lab.ident.periodic import data_report
+    from fnsi_lab.ident.core.periodic import data_report
     data, _ = _data(4, [0.0, 0.0, 0.0])
     rep = data_report(data)["noise"]
     assert rep["source"] == "periods" and rep["below_resolution"] == ["y0", "y1", "y2"]

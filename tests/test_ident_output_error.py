@@ -1,4 +1,4 @@
-"""The output-error refinement (ident.output_error, ident.harmonic_balance, ident.modal).
+"""The output-error refinement (ident.refine.output_error, ident.refine.harmonic_balance, ident.refine.modal).
 
 FNSI reads the basis functions on the measured motion; with noisy outputs that motion's
 noise sits in the regressors. The refinement fits the model's own periodic steady state,
@@ -17,16 +17,16 @@ import numpy as np
 import pytest
 
 import fnsi_lab
-from fnsi_lab.ident import fnsi
-from fnsi_lab.ident.basis import ParameterSpace
+from fnsi_lab.ident.core import fnsi
+from fnsi_lab.ident.core.basis import ParameterSpace
 from fnsi_lab.ident.cli import _print_refinement
-from fnsi_lab.ident.coefficients import nonlinear_coefficients, summarize_coefficients
+from fnsi_lab.ident.core.coefficients import nonlinear_coefficients, summarize_coefficients
 from fnsi_lab.ident.config import load_ident_config, packaged_config, parse_ident_config
 from fnsi_lab.ident.errors import IdentConfigError, IdentError
-from fnsi_lab.ident.harmonic_balance import BalanceState, HarmonicBalance
-from fnsi_lab.ident.modal import ModalModel
-from fnsi_lab.ident.output_error import _Problem, omitted_mode_evidence, refine_output_error
-from fnsi_lab.ident.periodic import with_basis
+from fnsi_lab.ident.refine.harmonic_balance import BalanceState, HarmonicBalance
+from fnsi_lab.ident.refine.modal import ModalModel
+from fnsi_lab.ident.refine.output_error import _Problem, omitted_mode_evidence, refine_output_error
+from fnsi_lab.ident.core.periodic import with_basis
 
 sim = pytest.importorskip("fnsi_lab.daq.sim")
 from fnsi_lab.daq.multisine import multisine  # noqa: E402
@@ -149,7 +149,7 @@ def test_refinement_gradient_is_the_derivative_of_the_output_error(fnsi_chain, m
     itself stops at 1e-3); the cost's own balance is solved to its Newton tolerance, so a
     component is compared to 1e-3 of itself or of the gradient's norm (a component near
     zero, e.g. a pole already near its optimum, is then not judged by its own size)."""
-    from fnsi_lab.ident import output_error
+    from fnsi_lab.ident.refine import output_error
     monkeypatch.setattr(output_error, "SENSITIVITY_TOLERANCE", 1e-9)
     data, basis, model = fnsi_chain
     basis = tuple(nl.with_parameters({"g_neg": 0.98 * GAPS[0], "g_pos": 1.02 * GAPS[1]})
@@ -251,7 +251,7 @@ def test_auto_leaves_a_model_that_misses_dynamics_to_fnsi():
 def test_acceleration_outputs_are_refined():
     """Accelerations, 0.1 % noise, 16 periods, the true mean position given as the offset:
     FNSI's stiffnesses -0.004 / -0.142 %; refined -0.005 / -0.004 % (the motion under the
-    band predicted with the model's static terms removed, ident.modal.LowFrequency)."""
+    band predicted with the model's static terms removed, ident.refine.modal.LowFrequency)."""
     src, mean = _chain("acceleration", noise=0.001, seed=1)
     cfg = _config("acceleration")
     cfg = replace(cfg, nonlinearities=tuple(replace(nl, offset=mean) for nl in cfg.nonlinearities))

@@ -1,4 +1,4 @@
-"""Basis parameters from the data (ident.parameter_search): clearances and exponents of
+"""Basis parameters from the data (ident.refine.parameter_search): clearances and exponents of
 simulated structures with known values, noise-free and noisy, relative and grounded stops,
 one- and two-sided, the refusals, the configuration syntax, the JSON/CLI/viewer outputs and
 the SmallSat (39 channels).
@@ -16,13 +16,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from fnsi_lab.ident.basis import Nonlinearity, ParameterSpace
-from fnsi_lab.ident.coefficients import nonlinear_coefficients, summarize_coefficients
+from fnsi_lab.ident.core.basis import Nonlinearity, ParameterSpace
+from fnsi_lab.ident.core.coefficients import nonlinear_coefficients, summarize_coefficients
 from fnsi_lab.ident.config import parse_ident_config
 from fnsi_lab.ident.errors import IdentConfigError, IdentError, IdentWarning, NotIdentifiableError
-from fnsi_lab.ident import fnsi
-from fnsi_lab.ident.parameter_search import estimate_basis_parameters, search_spaces
-from fnsi_lab.ident.periodic import prepare_frequency_data, with_basis
+from fnsi_lab.ident.core import fnsi
+from fnsi_lab.ident.refine.parameter_search import estimate_basis_parameters, search_spaces
+from fnsi_lab.ident.core.periodic import prepare_frequency_data, with_basis
 
 sim = pytest.importorskip("fnsi_lab.daq.sim")
 from fnsi_lab.daq.multisine import excited_lines, multisine  # noqa: E402
@@ -139,7 +139,7 @@ def test_curvature_is_measured_where_the_objective_is_smooth():
     """A model error that is rough at the scale of Newton's last stencil (a simulator that
     samples the contacts without band limit) gives an indefinite Hessian there; the
     uncertainty then comes from a wider stencil, not a refusal as 'flat'."""
-    from fnsi_lab.ident.parameter_search import Unknown, _wider_curvature
+    from fnsi_lab.ident.refine.parameter_search import Unknown, _wider_curvature
 
     def objectives(points):   # curvature 2 per axis, plus roughness of 1e-9 at 1e-6 scale
         return [float((p[0] - 1) ** 2 + (p[1] - 2) ** 2 + 1e-9 * np.sin(3e6 * p[0] * p[1]))
@@ -170,7 +170,7 @@ def _noisy_chain_data(gaps, seed):
 def test_relative_two_sided_stop_noisy(seed):
     """1 % white noise on every output, 16 periods averaged. The noise in the measured
     relative motion, gated by the contact, biases the plain model error's gaps upwards by
-    about its own size; the noise-corrected objective (ident.parameter_search.MotionNoise)
+    about its own size; the noise-corrected objective (ident.refine.parameter_search.MotionNoise)
     removes that bias and leaves the scatter (docs/ident.md). Seed 3 once ended in the
     spurious low-gap region where the stop columns become a linear copy of the noisy outputs
     (fixed by the Newton trust region)."""
@@ -260,7 +260,7 @@ def test_a_rough_minimum_is_refused():
     """The local profile must rise as the curvature says: a lucky low point of a rough model
     error (5-DOF chain seen by 2 outputs: 130-10^15 times off) is refused, a smooth minimum
     (0.6-2.3 measured) passes."""
-    from fnsi_lab.ident.parameter_search import (ParameterEstimate, Unknown, _MAX_ROUGHNESS,
+    from fnsi_lab.ident.refine.parameter_search import (ParameterEstimate, Unknown, _MAX_ROUGHNESS,
                                                  _refuse_if_unclear, _roughness)
 
     std, s2 = 1e-6, 1e-8
@@ -555,7 +555,7 @@ def test_search_compares_integrated_outputs_as_displacements(chain_stop):
     """Acceleration data reach the search as the displacements they integrate to: the same
     spectrum on every processed line (exact for band-limited samples), noise variances
     divided by w^4, forces and motion untouched."""
-    from fnsi_lab.ident.periodic import as_displacement_outputs
+    from fnsi_lab.ident.core.periodic import as_displacement_outputs
 
     model, u, _ = chain_stop
     ms = multisine(N, FS, (5, 60), 20.0, n_periods=3, seed=1)   # as chain_stop
@@ -733,7 +733,7 @@ def test_smallsat_39_channels_gaps_auto(quantity):
         gap_tol, coef_tol = 1e-3, 2e-3
     else:
         # measured -0.76 / -0.28 % and -2.1 / +0.2 % (the known gaps: -1.5 / +0.1 %: the
-        # basis misses the motion under the band, ident.periodic highpass_hz); the gaps count
+        # basis misses the motion under the band, ident.core.periodic highpass_hz); the gaps count
         # from the mean position (integrated outputs have no DC; a note says so). The issue's
         # 2 % on the gaps; 3 % on the coefficients, against +200 % before
         gap_tol, coef_tol = 2e-2, 3e-2

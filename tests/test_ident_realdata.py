@@ -16,13 +16,13 @@ import pytest
 import fnsi_lab
 from fnsi_lab.daq.multisine import multisine
 from fnsi_lab.daq.sim.lab import LabRealism, duffing_model, lab_experiment
-from fnsi_lab.ident import fnsi
-from fnsi_lab.ident.auto_result import confidence_statement
-from fnsi_lab.ident.basis import Nonlinearity
-from fnsi_lab.ident.coefficients import nonlinear_coefficients, summarize_coefficients
+from fnsi_lab.ident.core import fnsi
+from fnsi_lab.ident.robust.auto_result import confidence_statement
+from fnsi_lab.ident.core.basis import Nonlinearity
+from fnsi_lab.ident.core.coefficients import nonlinear_coefficients, summarize_coefficients
 from fnsi_lab.ident.errors import IdentError
-from fnsi_lab.ident.excitation import detect_excited_lines
-from fnsi_lab.ident.periodic import cut_realizations, prepare_frequency_data
+from fnsi_lab.ident.core.excitation import detect_excited_lines
+from fnsi_lab.ident.core.periodic import cut_realizations, prepare_frequency_data
 
 SILVERBOX = Path(__file__).resolve().parents[1] / "bench" / "data" / "silverbox-schroeder"
 FS = 610.35

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fnsi_lab.ident import fnsi, models, subspace
+from fnsi_lab.ident.core import fnsi, models, subspace
 
 
 def _hankel_gram(z, E, Y, i=4):
@@ -44,7 +44,7 @@ def test_no_folding_when_it_would_not_shrink_or_lines_repeat_unevenly():
 
 def _no_folding(monkeypatch):
     """The reference path: the QR and the model error over every stacked realisation."""
-    from fnsi_lab.ident import fast_bd
+    from fnsi_lab.ident.core import fast_bd
     monkeypatch.setattr(subspace, "fold_repeated_lines", lambda z, lines, E, Y: None)
     monkeypatch.setattr(fast_bd, "line_fold", lambda data: None)
 
@@ -225,7 +225,7 @@ def test_model_error_of_folded_realisations_equals_the_sum_over_every_one(monkey
     """The model error over ``min(R, m_e)`` folded rows per line plus the fixed remainder is
     the sum over every realisation: a unitary change of the realisation axis, so only
     round-off apart (bound 1e-10 relative; the error here is 1e-6 of the output energy)."""
-    from fnsi_lab.ident import fast_bd
+    from fnsi_lab.ident.core import fast_bd
     data, _ = _modal_realisations(6, noise=1e-3)
     dec = fnsi.subspace_decomposition(data, max_order=8, block_rows=6)
     mask = data.frequencies_hz > 60 / 512
@@ -261,8 +261,8 @@ def test_auto_method_on_noise_free_realisations_does_not_try_the_projected_form(
 def test_coefficients_of_stacked_realisations_evaluate_each_line_once():
     """The reciprocity formula at repeated lines: one transfer evaluation per unique line,
     the same values as evaluating every row."""
-    from fnsi_lab.ident.basis import Nonlinearity
-    from fnsi_lab.ident.coefficients import nonlinear_coefficients
+    from fnsi_lab.ident.core.basis import Nonlinearity
+    from fnsi_lab.ident.core.coefficients import nonlinear_coefficients
     data, _ = _modal_realisations(3, noise=1e-3)
     model = fnsi.model_at_order(fnsi.subspace_decomposition(data, max_order=8, block_rows=6),
                                 data, 4)

@@ -12,9 +12,10 @@ import numpy as np
 import pytest
 import scipy.linalg as sla
 
-from fnsi_lab.ident import auto, fnsi, state_space
-from fnsi_lab.ident.fast_bd import model_error
-from fnsi_lab.ident.periodic import FrequencyData
+from fnsi_lab.ident.robust import auto
+from fnsi_lab.ident.core import fnsi, state_space
+from fnsi_lab.ident.core.fast_bd import model_error
+from fnsi_lab.ident.core.periodic import FrequencyData
 from fnsi_lab.ident.errors import IdentError
 
 FS = 256.0
@@ -131,7 +132,7 @@ def test_pipeline_selects_order_keeps_physical_modes(noisy):
 def test_reduction_does_not_degrade_fit(noisy):
     data, _, _ = noisy
     res = auto.identify_auto(data, orders=range(2, 21), reduce_at=16)
-    from fnsi_lab.ident.order_selection import relative_model_error
+    from fnsi_lab.ident.robust.order_selection import relative_model_error
     v_full = relative_model_error(data.Y, fnsi.steady_state_output(res.full_model, data))
     v_red = relative_model_error(data.Y, fnsi.steady_state_output(res.reduced, data))
     v_sel = relative_model_error(data.Y, fnsi.steady_state_output(res.model, data))

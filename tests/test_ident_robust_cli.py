@@ -1,4 +1,4 @@
-"""``fnsi-lab ident --auto`` (hooks in ident.auto called by the core's ident.cli)."""
+"""``fnsi-lab ident --auto`` (hooks in ident.robust.auto called by the core's ident.cli)."""
 
 import json
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from fnsi_lab.cli import main
-from fnsi_lab.ident import auto
+from fnsi_lab.ident.robust import auto
 from fnsi_lab.ident.errors import IdentError
 
 YAML = """\

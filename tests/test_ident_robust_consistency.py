@@ -6,13 +6,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fnsi_lab.ident import auto, fnsi
-from fnsi_lab.ident import order_selection as osel
-from fnsi_lab.ident.basis import Nonlinearity
-from fnsi_lab.ident.coefficients import (coefficient_spread, nonlinear_coefficients, spread_function,
+from fnsi_lab.ident.robust import auto
+from fnsi_lab.ident.core import fnsi
+from fnsi_lab.ident.robust import order_selection as osel
+from fnsi_lab.ident.core.basis import Nonlinearity
+from fnsi_lab.ident.core.coefficients import (coefficient_spread, nonlinear_coefficients, spread_function,
                                 summarize_coefficients)
-from fnsi_lab.ident.mdi import modal_detection
-from fnsi_lab.ident.periodic import interpolate_periodic, prepare_frequency_data
+from fnsi_lab.ident.robust.mdi import modal_detection
+from fnsi_lab.ident.core.periodic import interpolate_periodic, prepare_frequency_data
 
 
 # ---------------------------------------------------------------------------- pure functions
@@ -44,7 +45,7 @@ def test_mdl_penalty_grows_with_the_parameter_count():
 
 
 def test_coefficient_spread_is_zero_for_a_real_constant_and_grows_with_departure():
-    from fnsi_lab.ident.coefficients import CoefficientSpectra
+    from fnsi_lab.ident.core.coefficients import CoefficientSpectra
     rng = np.random.default_rng(0)
     den = (rng.standard_normal(200) + 1j * rng.standard_normal(200))[:, None, None]
     exc = np.ones(200, bool)
@@ -114,7 +115,7 @@ def test_basis_oversampling_lowers_the_aliasing_floor_of_a_stop():
                                       output_names=model.measured_names,
                                       input_names=model.input_names, basis_oversample=os_,
                                       excited_lines=excited_lines(N, fs, (5, 60)))
-        assert data.noise_cov is None  # noise-free periods: no weighting (ident.noise)
+        assert data.noise_cov is None  # noise-free periods: no weighting (ident.core.noise)
         dec = fnsi.subspace_decomposition(data, max_order=12)
         errs, vs = [], []
         for n in (6, 8, 10):
@@ -172,7 +173,7 @@ def test_three_channel_smallsat_order_selection_keeps_the_coefficients_physical(
 def test_noisy_accelerations_integrate_only_the_lines_above_the_noise():
     """40 dB white noise on the accelerations of the cubic chain (6 periods averaged): the
     double integration for the basis function blows up the noise of the lines below the
-    excitation unless those lines are dropped (ident.periodic.noise_gain)."""
+    excitation unless those lines are dropped (ident.core.periodic.noise_gain)."""
     sim = pytest.importorskip("fnsi_lab.daq.sim")
     from fnsi_lab.daq.multisine import excited_lines, multisine
     fs, N = 512.0, 4096

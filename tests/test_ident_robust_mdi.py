@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.integrate import quad
 
-from fnsi_lab.ident import mdi
+from fnsi_lab.ident.robust import mdi
 from fnsi_lab.ident.errors import IdentError
 
 BAND = (2 * np.pi * 10.0, 2 * np.pi * 100.0)   # rad/s

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from fnsi_lab.ident import reduction
+from fnsi_lab.ident.robust import reduction
 
 
 def _real_modal_system(rng, mus, p=3, m=2):

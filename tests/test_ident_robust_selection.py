@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from fnsi_lab.ident import order_selection as osel
-from fnsi_lab.ident import stabilisation as stab
+from fnsi_lab.ident.robust import order_selection as osel
+from fnsi_lab.ident.robust import stabilisation as stab
 from fnsi_lab.ident.errors import IdentError
 
 

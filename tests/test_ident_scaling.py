@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fnsi_lab.ident import fast_bd, fnsi, models, subspace
-from fnsi_lab.ident.periodic import FrequencyData
+from fnsi_lab.ident.core import fast_bd, fnsi, models, subspace
+from fnsi_lab.ident.core.periodic import FrequencyData
 
 FS, N = 1000.0, 2048
 #: Six modes in the band (Hz, damping ratio).

@@ -1,4 +1,4 @@
-"""Periods not in steady state (ident.steady): measured, chosen, reported."""
+"""Periods not in steady state (ident.core.steady): measured, chosen, reported."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import fnsi_lab
 from fnsi_lab.daq.multisine import multisine
 from fnsi_lab.daq.sim import lumped_model, simulate
 from fnsi_lab.daq.sim.model import modal_decomposition
-from fnsi_lab.ident.steady import select_steady_periods
+from fnsi_lab.ident.core.steady import select_steady_periods
 
 FS, N = 256.0, 1024
 

@@ -1,4 +1,4 @@
-"""Coefficient verdicts (ident.verdict, ident.regressors) against simulated truths.
+"""Coefficient verdicts (ident.robust.verdict, ident.core.regressors) against simulated truths.
 
 Monte Carlo over noise seeds on the 3-DOF chain (daq.sim.lumped): the verdict must say
 ``identified`` where the element acts well above the noise, ``not identifiable`` where it
@@ -21,7 +21,7 @@ import pytest
 import fnsi_lab
 from fnsi_lab.daq.multisine import multisine
 from fnsi_lab.daq.sim import lumped_model, simulate
-from fnsi_lab.ident.verdict import (IDENTIFIED, NOT_IDENTIFIABLE, WEAK, coefficient_verdict,
+from fnsi_lab.ident.robust.verdict import (IDENTIFIED, NOT_IDENTIFIABLE, WEAK, coefficient_verdict,
                                     not_supported)
 
 FS, N, PERIODS = 1024.0, 4096, 6
@@ -92,7 +92,7 @@ def test_stop_always_in_contact_is_not_identifiable():
     j = r.to_json()
     assert [c["verdict"] for c in j["coefficients"]] == [NOT_IDENTIFIABLE] * 2
     # the columns are not collinear with each other or the force: the regression is not
-    # the reason (ident.regressors)
+    # the reason (ident.core.regressors)
     assert all(col["inflation"] < 10 for col in j["regressors"]["columns"].values())
 
 

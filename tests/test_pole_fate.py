@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from fnsi_lab.ident.pole_fate import FATES, fate_caption, pole_fates, result_fates
+from fnsi_lab.ident.robust.pole_fate import FATES, fate_caption, pole_fates, result_fates
 from fnsi_lab.viewer.log import FATE_STYLE as VIEWER_STYLE
 from fnsi_lab.viewer.report import FATE_STYLE as REPORT_STYLE, mdi_caption, mode_rows
 

@@ -7,7 +7,7 @@ import pytest
 from rerun.chunk import RrdReader
 
 from fnsi_lab.cli import main
-from fnsi_lab.ident.options import parse_orders
+from fnsi_lab.ident.robust.options import parse_orders
 from fnsi_lab.viewer import paths
 from fnsi_lab.viewer.cli import rrd_entities, rrd_text
 
@@ -203,7 +203,7 @@ def test_run_is_the_readme_main_job_on_the_default_smallsat(tmp_path, capsys):
         assert abs(err) < 1.0, ln
     # the modes of Table 1 with the largest response (11.01, 28.41, 32.62 Hz) are listed
     # and classified physical (0.5 %: the tolerance)
-    # (the table's last column is each pole's fate, ident.pole_fate's words)
+    # (the table's last column is each pole's fate, ident.robust.pole_fate's words)
     table = [ln.split() for ln in out.splitlines()
              if ln.strip()[:1].isdigit() and ln.strip().endswith(("physical", "MDI"))]
     phys = [float(t[0]) for t in table if t[-1] == "physical"]

@@ -99,7 +99,7 @@ def test_ic_gaps_and_fates_are_explained(smallsat):
     labels = [t.get_text() for leg in R.figure_criterion(smallsat).legends for t in leg.get_texts()]
     if gaps:
         assert any(t.startswith("order not fitted: unstable") for t in labels), labels
-    from fnsi_lab.ident.pole_fate import fate_label
+    from fnsi_lab.ident.robust.pole_fate import fate_label
 
     caption = R.mdi_caption(smallsat)
     for fate in {r["fate"] for r in smallsat["mdi"] if (r.get("mdi_h2") or 0) > 0}:

@@ -1,4 +1,4 @@
-"""The typed, frozen result (ident.result, ident.pipeline.Identification; issue 28 item 3):
+"""The typed, frozen result (ident.core.result, ident.pipeline.Identification; issue 28 item 3):
 records read as attributes and as read-only mappings, the identification is never patched,
 and to_json() writes the records' fields as the documented keys. Data: the 3-DOF chain with
 a relative cubic spring (daq.sim.lumped), 1 % output noise, order 6.
@@ -16,7 +16,7 @@ import fnsi_lab
 from fnsi_lab.daq.multisine import multisine
 from fnsi_lab.daq.sim import lumped_model, simulate
 from fnsi_lab.ident.pipeline import Identification
-from fnsi_lab.ident.result import Coefficient, Mode
+from fnsi_lab.ident.core.result import Coefficient, Mode
 from fnsi_lab.outputs import json_safe
 
 FS, N, PERIODS = 1024.0, 4096, 4

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from fnsi_lab.ident.basis import Nonlinearity
-from fnsi_lab.ident.units import coefficient_unit, length_unit, result_units
+from fnsi_lab.ident.core.basis import Nonlinearity
+from fnsi_lab.ident.core.units import coefficient_unit, length_unit, result_units
 
 
 @pytest.mark.parametrize("kwargs, unit", [

@@ -121,7 +121,7 @@ def test_api_equals_cli_and_model_round_trip(duffing_files):
     """fnsi_lab.validate_model is the CLI's entry point (same numbers); the result JSON
     rebuilds the identified model exactly (its steady-state output on the data)."""
     import fnsi_lab
-    from fnsi_lab.ident.model_json import basis_from_json, model_from_json
+    from fnsi_lab.ident.core.model_json import basis_from_json, model_from_json
 
     v = fnsi_lab.validate_model(duffing_files / "low.json", duffing_files / "high.npz")
     cli = json.loads((duffing_files / "val.json").read_text())

@@ -54,7 +54,7 @@ POLE_STYLE: dict[str, tuple[tuple[int, int, int], str]] = {
     "unstable": (_RED, "unstable"),
 }
 
-#: A pole's fate (ident.pole_fate: the words of the terminal, the JSON and the report) ->
+#: A pole's fate (ident.robust.pole_fate: the words of the terminal, the JSON and the report) ->
 #: (colour, legend): every pair far apart in colour (tests/test_pole_fate.py).
 FATE_STYLE: dict[str, tuple[tuple[int, int, int], str]] = {
     "physical": (_GREEN, "physical"),

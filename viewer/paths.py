@@ -74,7 +74,7 @@ STATUS = "/status"
 STATUS_LOG = "/status/log"
 
 #: Pole classes of the stabilisation diagram, in legend order (the names of
-#: ``ident.stabilisation.STAB_CLASSES`` plus ``unstable`` for poles with zeta < 0).
+#: ``ident.robust.stabilisation.STAB_CLASSES`` plus ``unstable`` for poles with zeta < 0).
 POLE_CLASSES: tuple[str, ...] = ("new", "frequency", "damping", "mode", "stable", "unstable")
 
 _UNSAFE = re.compile(r"[^A-Za-z0-9_\-.]+")

@@ -32,7 +32,7 @@ STAB_STYLE: dict[str, tuple[str, str, str]] = {
     "unstable": ("#d55e00", "*", "unstable (zeta < 0)"),
 }
 FRF_STYLE = {"measured": "#282828", "model": "#e69f00", "underlying_linear": "#0072b2"}
-#: A pole's fate (ident.pole_fate) -> (colour, marker): kept ones filled, dropped ones open
+#: A pole's fate (ident.robust.pole_fate) -> (colour, marker): kept ones filled, dropped ones open
 #: or crossed, each reason its own colour.
 FATE_STYLE: dict[str, tuple[str, str]] = {
     "physical": ("#009e73", "o"),
@@ -124,7 +124,7 @@ def exact_values(result: Mapping[str, Any]) -> dict[str, float]:
 
 
 def coefficient_unit(result: Mapping[str, Any], name: str) -> str:
-    """Unit of a coefficient (``N/mm``...): the JSON's ``units`` block (``ident.units``);
+    """Unit of a coefficient (``N/mm``...): the JSON's ``units`` block (``ident.core.units``);
     empty for results written before units were recorded."""
     return str(((result.get("units") or {}).get("coefficients") or {}).get(name) or "")
 
@@ -178,8 +178,8 @@ def summary_rows(result: Mapping[str, Any]) -> list[tuple[str, str]]:
 
 def pole_fates(result: Mapping[str, Any]) -> list[str]:
     """The fate of each row of the result's ``mdi`` table (``mdi[].fate``, or derived for
-    results written before it was recorded: :func:`ident.pole_fate.result_fates`)."""
-    from fnsi_lab.ident.pole_fate import result_fates
+    results written before it was recorded: :func:`ident.robust.pole_fate.result_fates`)."""
+    from fnsi_lab.ident.robust.pole_fate import result_fates
 
     rows = result.get("mdi") or []
     if rows and all("fate" in r for r in rows):
@@ -190,7 +190,7 @@ def pole_fates(result: Mapping[str, Any]) -> list[str]:
 def mode_rows(result: Mapping[str, Any]) -> list[dict]:
     """Mode table: the in-band poles of the MDI order with their decisions (robust pipeline),
     else the modes of the answer."""
-    from fnsi_lab.ident.pole_fate import fate_label
+    from fnsi_lab.ident.robust.pole_fate import fate_label
 
     key = mdi_key(result)
     fates = pole_fates(result)
@@ -280,7 +280,7 @@ def figure_criterion(result: Mapping[str, Any]) -> Any:
 
 def figure_mdi(result: Mapping[str, Any]) -> Any:
     """MDI of each pole of the MDI order against its frequency, physical and spurious apart."""
-    from fnsi_lab.ident.pole_fate import FATE_ORDER, fate_label
+    from fnsi_lab.ident.robust.pole_fate import FATE_ORDER, fate_label
 
     key = mdi_key(result)
     rows = [dict(r, fate=fate) for r, fate in zip(result.get("mdi") or [], pole_fates(result))
@@ -503,7 +503,7 @@ def figure_frf(result: Mapping[str, Any], output: str | None = None) -> Any | No
 
 def mdi_caption(result: Mapping[str, Any]) -> str:
     """The MDI figure's caption: what each fate drawn means (only those present)."""
-    from fnsi_lab.ident.pole_fate import fate_caption
+    from fnsi_lab.ident.robust.pole_fate import fate_caption
 
     fates = [f for r, f in zip(result.get("mdi") or [], pole_fates(result))
              if (r.get(mdi_key(result)) or 0) > 0]

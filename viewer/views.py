@@ -44,7 +44,7 @@ def auto_view(update: ServiceUpdate) -> dict[str, Any]:
     ic = res.information_criterion
     view["criterion"] = {"orders": ic.orders, "criterion": ic.value,
                          "selected_order": res.selected_order}
-    from fnsi_lab.ident.pole_fate import pole_fates
+    from fnsi_lab.ident.robust.pole_fate import pole_fates
 
     thr = res.threshold.threshold
     rows = res.mdi_table()  # sorted by frequency, with the decisions
@@ -139,8 +139,8 @@ def left_out_hz(ai: AutoIdentification) -> list[float]:
 
 def mode_table(res: Any, left_out_hz: Sequence[float] = ()) -> list[dict[str, Any]]:
     """One row per mode of the MDI order: frequency, damping, MDI, stabilisation and its fate
-    (:mod:`ident.pole_fate`: physical, spurious by MDI, not detectable...)."""
-    from fnsi_lab.ident.pole_fate import fate_label, pole_fates
+    (:mod:`ident.robust.pole_fate`: physical, spurious by MDI, not detectable...)."""
+    from fnsi_lab.ident.robust.pole_fate import fate_label, pole_fates
 
     out = []
     rows = res.mdi_table()

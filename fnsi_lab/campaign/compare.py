@@ -104,7 +104,7 @@ class Comparison:
     inputs: list[str]
     warnings: list[str] = field(default_factory=list)
     failed: list[tuple[str, str]] = field(default_factory=list)
-    #: The runs' ``units`` block (force, frf, coefficients {name: unit}; ident.units);
+    #: The runs' ``units`` block (force, frf, coefficients {name: unit}; ident.core.units);
     #: empty for results written before units were recorded.
     units: dict = field(default_factory=dict)
 

@@ -1,0 +1,16 @@
+"""The core floor: periodic records to a linear-in-the-parameters FNSI model.
+
+Imports nothing from the floors above (``robust``, ``refine``) nor from the entry point; only
+numpy, scipy and :mod:`fnsi_lab.ident.errors`. ``periodic`` (records -> ``FrequencyData``:
+averaging, noise covariance, steady periods with ``steady``; excited lines with
+``excitation``, mains and noise lines with ``noise``), ``basis`` and ``spline`` (the
+nonlinear basis functions, the extended input), the FNSI decomposition split by job:
+``subspace`` (one QR + one SVD, ``A`` and ``C``), ``bd`` and ``fast_bd`` (``B``, ``D`` by
+least squares), ``weights`` (noise weights), ``models`` (a model of a given order),
+``state_space`` (the model, its poles, continuous time, FRFs), with ``fnsi`` as their public
+face; ``coefficients`` (nonlinear coefficients by signed reciprocity), ``regressors`` (their
+conditioning), ``units``, ``time_base`` (the line map of a fixed-order model), ``distortion``
+(best linear approximation, noise and distortion levels), ``io`` (arrays in),
+``model_json`` (a model rebuilt from a result) and ``result`` (the answer's typed records:
+``Mode``, ``Coefficient``).
+"""

@@ -1,0 +1,198 @@
+"""Identification input as arrays: :class:`IdentInput` and the user-data array format.
+
+Reading files happens at the edge (:mod:`fnsi_lab.inputs`: fnsi-lab MCAP, ``.npz``,
+MATLAB ``.mat``); this module only validates arrays. The array format
+(:func:`input_from_arrays`) holds
+  ``u``   forces, shape ``(n_samples,)`` or ``(n_samples, n_inputs)`` (also
+          ``(n_periods, N, n_inputs)`` or ``(n_realizations, n_periods, N, n_inputs)``);
+  ``y``   outputs, shape ``(n_samples, n_outputs)`` (same leading axes as ``u``);
+  ``fs``  sampling rate (Hz), scalar;
+  ``N``   optional samples per period (default: the config's, else one period);
+  ``channels``        optional output names (default ``y0, y1, ...``);
+  ``input_channels``  optional input names (default ``u0, ...``);
+  ``quantity``        optional output quantity (displacement | velocity | acceleration);
+  ``excited_lines``   optional DFT bins of one period the multisine excites (else detected
+                      from ``u``: :mod:`ident.core.excitation`);
+  ``realization_starts``, ``transient_samples``  optional: ``u``, ``y`` are one long record
+                      whose realisation ``r`` starts at sample ``realization_starts[r]``;
+                      ``transient_samples`` are dropped after each start, then whole periods
+                      of ``N`` samples (:func:`ident.core.periodic.cut_realizations`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from functools import partial
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from fnsi_lab.ident.errors import ChannelError, IdentDataError, IdentError
+from fnsi_lab.ident.core.periodic import (OUTPUT_QUANTITIES, OutputQuantity, as_periodic,
+                                     cut_realizations)
+
+
+@dataclass(frozen=True, eq=False)
+class IdentInput:
+    """Periodic data ready for :func:`ident.core.periodic.prepare_frequency_data`.
+
+    Attributes
+    ----------
+    u : ndarray, shape (R, P, N, m)
+    y : ndarray, shape (R, P, N, p)
+    sample_rate_hz : float
+    samples_per_period : int
+    input_channels, output_channels : tuple of str
+    transient_periods : int or None
+        From the recording metadata (None: unknown).
+    excited_lines : ndarray of int or None
+    output_quantity : str or None
+        Common quantity of the outputs when known.
+    truth : dict or None
+    path : str
+    channel_units : mapping str -> str
+        Unit of each channel by name, from the recording's channel table (empty: not
+        known, SI assumed; ``ident.core.units``).
+    """
+
+    u: np.ndarray
+    y: np.ndarray
+    sample_rate_hz: float
+    samples_per_period: int
+    input_channels: tuple[str, ...]
+    output_channels: tuple[str, ...]
+    transient_periods: int | None = None
+    excited_lines: np.ndarray | None = None
+    output_quantity: OutputQuantity | None = None
+    truth: dict | None = None
+    path: str = ""
+    notes: tuple[str, ...] = field(default=())
+    channel_units: Mapping[str, str] = field(default_factory=dict)
+
+
+def _names(value: Any, n: int, prefix: str, what: str, path: str) -> tuple[str, ...]:
+    if value is None:
+        return tuple(f"{prefix}{i}" for i in range(n))
+    arr = np.asarray(value)
+    if arr.dtype.kind in "US" and arr.ndim <= 1:
+        names = [str(s).strip() for s in np.atleast_1d(arr)]
+    elif arr.dtype == object:  # MATLAB cell array
+        names = [str(np.asarray(s).squeeze()).strip() for s in arr.reshape(-1)]
+    else:
+        raise IdentDataError(f"{path}: '{what}' must be a list of names, got dtype {arr.dtype}")
+    if len(names) != n:
+        raise IdentDataError(f"{path}: '{what}' has {len(names)} names for {n} channels")
+    return tuple(names)
+
+
+def input_from_arrays(arrays: Mapping[str, Any], path: str = "",
+                      samples_per_period: int | None = None) -> IdentInput:
+    """An :class:`IdentInput` from the arrays of the user-data format (module docstring).
+
+    Raises
+    ------
+    IdentDataError
+        A missing array, a wrong shape or a bad value, in one line naming ``path``.
+    """
+    for key in ("u", "y", "fs"):
+        if key not in arrays:
+            raise IdentDataError(f"{path}: missing array {key!r} (needs u, y, fs; optional N, "
+                                 "channels, input_channels)")
+    try:
+        fs = np.asarray(arrays["fs"], float).reshape(-1)
+    except (TypeError, ValueError):
+        raise IdentDataError(f"{path}: 'fs' must be one positive number (Hz), got "
+                             f"{np.asarray(arrays['fs'])!r}") from None
+    if fs.size != 1 or not fs[0] > 0:
+        raise IdentDataError(f"{path}: 'fs' must be one positive number, got {arrays['fs']!r}")
+    N = samples_per_period
+    if "N" in arrays:
+        try:
+            n_file = int(np.asarray(arrays["N"]).reshape(-1)[0])
+        except (TypeError, ValueError, IndexError):
+            n_file = 0
+        if n_file < 1:  # not "no N": a wrong value (samples per period)
+            raise IdentDataError(f"{path}: 'N' (samples per period) must be an integer >= 1, "
+                                 f"got {np.asarray(arrays['N'])!r}; fix it or drop N")
+        if N is not None and N != n_file:
+            raise IdentDataError(f"{path}: N={n_file} in the file but samples_per_period={N}")
+        N = n_file
+    for key in ("u", "y"):  # a cast to float would keep the real part without a word
+        if np.iscomplexobj(arrays[key]):
+            raise IdentDataError(f"{path}: {key!r} holds complex numbers; time data are real "
+                                 f"(fix: save the measured time signals, not spectra)")
+    try:
+        u = np.asarray(arrays["u"], float)
+        y = np.asarray(arrays["y"], float)
+    except (TypeError, ValueError):
+        raise IdentDataError(f"{path}: 'u' and 'y' must be numeric arrays") from None
+    if u.ndim == 2 and y.ndim == 2 and u.shape[0] != y.shape[0] and u.shape[1] == y.shape[0]:
+        pass  # leave the error to the shape check below (no silent transposes)
+    if u.ndim == 1:
+        u = u[:, None]
+    if y.ndim == 1:
+        y = y[:, None]
+    if u.shape[:-1] != y.shape[:-1]:
+        raise IdentDataError(f"{path}: u {u.shape} and y {y.shape} do not have the same number "
+                             "of samples (expected u (n_samples, n_inputs), y (n_samples, n_outputs))")
+    try:
+        if "realization_starts" in arrays:   # one long record, several realisations
+            if N is None or u.ndim != 2:
+                raise IdentError("realization_starts needs N and 2-D u, y (n_samples, channels)")
+            cut = partial(cut_realizations,
+                          starts=np.asarray(arrays["realization_starts"]).reshape(-1),
+                          samples_per_period=N,
+                          transient_samples=int(np.asarray(arrays.get("transient_samples", 0))))
+            u, y = cut(u), cut(y)
+        u4 = as_periodic(u, N, "u")
+        y4 = as_periodic(y, N, "y")
+    except IdentError as exc:
+        raise IdentDataError(f"{path}: {exc}") from None
+    exc_lines = None
+    if "excited_lines" in arrays:
+        exc_lines = np.asarray(arrays["excited_lines"]).reshape(-1)
+        if (exc_lines.size == 0 or not np.all(np.mod(exc_lines, 1) == 0)
+                or exc_lines.min() < 1 or exc_lines.max() >= u4.shape[2] / 2):
+            raise IdentDataError(f"{path}: 'excited_lines' must be DFT bins 1 .. N/2-1 of one "
+                                 f"period (N = {u4.shape[2]}), got {exc_lines[:5]}...")
+        exc_lines = exc_lines.astype(int)
+    given = arrays.get("quantity")
+    q = None if given is None else str(np.asarray(given).squeeze())
+    if q is not None and q not in OUTPUT_QUANTITIES:
+        raise IdentDataError(f"{path}: quantity {q!r} is not one of {list(OUTPUT_QUANTITIES)}")
+    quantity = None if q is None else OUTPUT_QUANTITIES[OUTPUT_QUANTITIES.index(q)]
+    return IdentInput(u=u4, y=y4, sample_rate_hz=float(fs[0]), samples_per_period=u4.shape[2],
+                      input_channels=_names(arrays.get("input_channels"), u4.shape[3], "u",
+                                            "input_channels", path),
+                      output_channels=_names(arrays.get("channels"), y4.shape[3], "y",
+                                             "channels", path),
+                      output_quantity=quantity, path=path, excited_lines=exc_lines)
+
+
+def select_channels(inp: IdentInput, *, outputs: Sequence[str] | None = None,
+                    inputs: Sequence[str] | None = None) -> IdentInput:
+    """Keep (and order) the named output and input channels.
+
+    Raises
+    ------
+    ChannelError
+        A name is not in the file (the message lists the available ones).
+    """
+    u, y = inp.u, inp.y
+    ins, outs = inp.input_channels, inp.output_channels
+    if outputs:
+        missing = [o for o in outputs if o not in outs]
+        if missing:
+            raise ChannelError(f"{inp.path}: output channel(s) {missing} not in the file "
+                               f"(outputs: {list(outs)})")
+        y = y[..., [outs.index(o) for o in outputs]]
+        outs = tuple(outputs)
+    if inputs:
+        missing = [i for i in inputs if i not in ins]
+        if missing:
+            raise ChannelError(f"{inp.path}: input channel(s) {missing} not in the file "
+                               f"(inputs: {list(ins)})")
+        u = u[..., [ins.index(i) for i in inputs]]
+        ins = tuple(inputs)
+    return replace(inp, u=u, y=y, input_channels=ins, output_channels=outs)
