@@ -25,7 +25,8 @@ from fnsi_lab.ident.config import load_ident_config, packaged_config, parse_iden
 from fnsi_lab.ident.errors import IdentConfigError, IdentError
 from fnsi_lab.ident.refine.harmonic_balance import BalanceState, HarmonicBalance
 from fnsi_lab.ident.refine.modal import ModalModel
-from fnsi_lab.ident.refine.output_error import _Problem, omitted_mode_evidence, refine_output_error
+from fnsi_lab.ident.refine.output_error import omitted_mode_evidence, refine_output_error
+from fnsi_lab.ident.refine.output_error_problem import OutputErrorProblem
 from fnsi_lab.ident.core.periodic import with_basis
 
 sim = pytest.importorskip("fnsi_lab.daq.sim")
@@ -149,15 +150,15 @@ def test_refinement_gradient_is_the_derivative_of_the_output_error(fnsi_chain, m
     itself stops at 1e-3); the cost's own balance is solved to its Newton tolerance, so a
     component is compared to 1e-3 of itself or of the gradient's norm (a component near
     zero, e.g. a pole already near its optimum, is then not judged by its own size)."""
-    from fnsi_lab.ident.refine import output_error
-    monkeypatch.setattr(output_error, "SENSITIVITY_TOLERANCE", 1e-9)
+    from fnsi_lab.ident.refine import output_error_problem
+    monkeypatch.setattr(output_error_problem, "SENSITIVITY_TOLERANCE", 1e-9)
     data, basis, model = fnsi_chain
     basis = tuple(nl.with_parameters({"g_neg": 0.98 * GAPS[0], "g_pos": 1.02 * GAPS[1]})
                   for nl in basis)
     data = with_basis(data, basis)
-    prob = _Problem(data, basis, ModalModel.from_matrices(model.a_d, model.b_d, model.c_d,
-                                                          model.d_d),
-                    [(0, "g_neg"), (0, "g_pos")], 1 / np.sqrt(data.noise_var), True)
+    prob = OutputErrorProblem(data, basis,
+                              ModalModel.from_matrices(model.a_d, model.b_d, model.c_d, model.d_d),
+                              [(0, "g_neg"), (0, "g_pos")], 1 / np.sqrt(data.noise_var), True)
     shared, own = prob.pack(prob.start_modal, basis)
     point, _ = prob.evaluate(shared, own)
     _, g_s, _, _, g_o = prob.normal_equations(point)
