@@ -5,7 +5,8 @@ numpy, scipy and :mod:`fnsi_lab.ident.errors`. ``periodic`` (records -> ``Freque
 averaging, noise covariance, steady periods with ``steady``; excited lines with
 ``excitation``, mains and noise lines with ``noise``), ``basis`` and ``spline`` (the
 nonlinear basis functions, the extended input), the FNSI decomposition split by job:
-``subspace`` (one QR + one SVD, ``A`` and ``C``), ``bd`` and ``fast_bd`` (``B``, ``D`` by
+``subspace`` (one QR + one SVD, ``A`` and ``C``; ``folding`` folds stacked realisations
+per line for it), ``bd`` and ``fast_bd`` (``B``, ``D`` by
 least squares), ``weights`` (noise weights), ``models`` (a model of a given order),
 ``state_space`` (the model, its poles, continuous time, FRFs), with ``fnsi`` as their public
 face; ``coefficients`` (nonlinear coefficients by signed reciprocity), ``regressors`` (their

@@ -199,39 +199,13 @@ def estimate_bd_given_modes(a_d, c_d, data, *, d_zero, weighted, modal):
     n = a_d.shape[0]
     p, m_e = data.n_outputs, data.n_extended_inputs
     Q = inverse_covariance(data, weighted)
-    if Q is None and p > n + subspace.OUTPUT_RANK_MARGIN and n > 0:
-        # unweighted: exact on range(C) plus the complement's D (project_outputs), so the
-        # D unknowns of hundreds of channels never enter the normal equations
-        W = np.linalg.qr(c_d)[0]
-        reduced, d_perp, _ = project_outputs(data, W, d_zero=d_zero)
-        b_d, d_r = estimate_bd_given_modes(a_d, W.T @ c_d, reduced, d_zero=d_zero, weighted=False,
-                                modal=modal)
-        return b_d, W @ d_r + d_perp
-    if (Q is not None and Q.ndim == 2 and modal[2] and not d_zero
-            and p > n + subspace.OUTPUT_RANK_MARGIN):
-        return _estimate_bd_diag_weighted(a_d, c_d, data, Q, modal)
-    if Q is None and modal[2]:
-        if line_sums(data) is not None:  # stacked realisations: per-line sums, same answer
-            bd = fast_estimate_bd(a_d, c_d, data, d_zero=d_zero)
-            if bd is not None:
-                return bd
+    shortcut = _bd_shortcut(a_d, c_d, data, Q, d_zero=d_zero, modal=modal)
+    if shortcut is not None:
+        return shortcut
     mu, phi, ok = modal
     E, Y = data.E, data.Y
     nq = n + (0 if d_zero else p)
-    if ok:
-        # regressor blocks: C_hat diag(w_k) for B_hat, identity for D; T maps real -> modal
-        ch = c_d @ phi
-        w = 1.0 / (data.z[:, None] - mu[None, :])
-        base = np.hstack([ch, np.eye(p)]) if not d_zero else ch
-        wt = np.hstack([w, np.ones((w.shape[0], p))]) if not d_zero else w
-        T = sla.block_diag(np.linalg.inv(phi), np.eye(nq - n)) if nq > n else np.linalg.inv(phi)
-    else:
-        # direct fallback: K_k = C (z_k I - A)^{-1}, real state coordinates
-        zI = data.z[:, None, None] * np.eye(n)[None]
-        K = np.linalg.solve(np.swapaxes(zI - a_d, 1, 2), np.broadcast_to(c_d.T, (len(data.z), n, p)))
-        K = np.swapaxes(K, 1, 2)  # (F, p, n)
-        base = None
-        T = np.eye(nq)
+    base, wt, K, T = _regressor_blocks(a_d, c_d, data, modal, d_zero)
 
     def regress(k0, k1):
         """Per-line regressor R_k (chunk, p, nq)."""
@@ -260,8 +234,100 @@ def estimate_bd_given_modes(a_d, c_d, data, *, d_zero, weighted, modal):
             out += E[k0:k1].conj().T @ P_
         return out
 
-    # normal matrix N[a, i, b, j] (complex, modal coordinates)
-    F = len(data.z)
+    Nc = _normal_matrix(E, Q, base, wt, regress, ok=ok, n=n, nq=nq, p=p)
+    Nt = T.conj().T @ Nc.transpose(0, 2, 1, 3) @ T  # (a, b, i, l)
+    Nr = Nt.transpose(0, 2, 1, 3).real.reshape(m_e * nq, m_e * nq)
+    Nr = 0.5 * (Nr + Nr.T)
+
+    def to_real(rc):
+        return (rc @ T.conj()).real.reshape(-1)  # (T^H r) per a: r_a T^* -> (m_e, nq)
+
+    def predict(theta):
+        th = theta.reshape(m_e, nq)
+        Bm = th[:, :n].T  # (n, m_e) real
+        Dm = th[:, n:].T if nq > n else np.zeros((p, m_e))
+        return apply_model(a_d, Bm, c_d, Dm, data.z, E, modal=(mu, phi, ok))
+
+    solve = _normal_solver(Nr)
+    theta = solve(to_real(rhs_of(Y)))
+    for _ in range(2):  # iterative refinement (semi-normal equations)
+        resid = Y - predict(theta)
+        theta = theta + solve(to_real(rhs_of(resid)))
+    th = theta.reshape(m_e, nq)
+    b_d = th[:, :n].T * data.input_scale[None, :]
+    d_d = (th[:, n:].T if nq > n else np.zeros((p, m_e))) * data.input_scale[None, :]
+    return b_d, d_d
+
+
+def _bd_shortcut(a_d, c_d, data, Q, *, d_zero, modal):
+    """``(B_d, D_d)`` by a cheaper exact route when one applies, else None.
+
+    Unweighted with many channels: on ``range(C)`` plus the complement's ``D``
+    (:func:`project_outputs`); diagonal weights with many channels: the per-channel form
+    (:func:`_estimate_bd_diag_weighted`); unweighted stacked realisations: per-line sums
+    (:func:`ident.core.fast_bd.fast_estimate_bd`).
+    """
+    n = a_d.shape[0]
+    p = data.n_outputs
+    if Q is None and p > n + subspace.OUTPUT_RANK_MARGIN and n > 0:
+        # unweighted: exact on range(C) plus the complement's D (project_outputs), so the
+        # D unknowns of hundreds of channels never enter the normal equations
+        W = np.linalg.qr(c_d)[0]
+        reduced, d_perp, _ = project_outputs(data, W, d_zero=d_zero)
+        b_d, d_r = estimate_bd_given_modes(a_d, W.T @ c_d, reduced, d_zero=d_zero, weighted=False,
+                                modal=modal)
+        return b_d, W @ d_r + d_perp
+    if (Q is not None and Q.ndim == 2 and modal[2] and not d_zero
+            and p > n + subspace.OUTPUT_RANK_MARGIN):
+        return _estimate_bd_diag_weighted(a_d, c_d, data, Q, modal)
+    if Q is None and modal[2]:
+        if line_sums(data) is not None:  # stacked realisations: per-line sums, same answer
+            bd = fast_estimate_bd(a_d, c_d, data, d_zero=d_zero)
+            if bd is not None:
+                return bd
+    return None
+
+
+def _regressor_blocks(a_d, c_d, data, modal, d_zero):
+    """The pieces of the per-line regressors and the map ``T`` from real to modal unknowns.
+
+    Returns
+    -------
+    base, wt : ndarrays or None
+        Modal form (``modal[2]``): ``R_k = base diag(wt[k])``, ``base = [C Phi, I]`` (p, nq),
+        ``wt[k] = [1 / (z_k - mu), 1]`` (F, nq); None otherwise.
+    K : ndarray, shape (F, p, n), or None
+        Direct fallback: ``K_k = C (z_k I - A)^{-1}`` in real state coordinates.
+    T : ndarray, shape (nq, nq)
+    """
+    n = a_d.shape[0]
+    p = data.n_outputs
+    mu, phi, ok = modal
+    nq = n + (0 if d_zero else p)
+    base = wt = K = None
+    if ok:
+        # regressor blocks: C_hat diag(w_k) for B_hat, identity for D; T maps real -> modal
+        ch = c_d @ phi
+        w = 1.0 / (data.z[:, None] - mu[None, :])
+        base = np.hstack([ch, np.eye(p)]) if not d_zero else ch
+        wt = np.hstack([w, np.ones((w.shape[0], p))]) if not d_zero else w
+        T = sla.block_diag(np.linalg.inv(phi), np.eye(nq - n)) if nq > n else np.linalg.inv(phi)
+    else:
+        # direct fallback: K_k = C (z_k I - A)^{-1}, real state coordinates
+        zI = data.z[:, None, None] * np.eye(n)[None]
+        K = np.linalg.solve(np.swapaxes(zI - a_d, 1, 2), np.broadcast_to(c_d.T, (len(data.z), n, p)))
+        K = np.swapaxes(K, 1, 2)  # (F, p, n)
+        T = np.eye(nq)
+    return base, wt, K, T
+
+
+def _normal_matrix(E, Q, base, wt, regress, *, ok, n, nq, p):
+    """The normal matrix ``N[a, i, b, j]`` (complex, modal coordinates), shape (m_e, nq, m_e, nq).
+
+    ``regress(k0, k1)`` gives the per-line regressors ``R_k`` (chunk, p, nq) of lines
+    ``k0:k1`` (used when no modal form is available).
+    """
+    F, m_e = E.shape
     if ok and Q is None:
         M0 = base.conj().T @ base  # (nq, nq)
         # the p weights of the D unknowns are all 1: use one column for them, then expand
@@ -295,25 +361,4 @@ def estimate_bd_given_modes(a_d, c_d, data, *, d_zero, weighted, modal):
             EE = E[k0:k1].conj()[:, :, None] * E[k0:k1][:, None, :]  # (c, m_e, m_e)
             Nc += (EE.reshape(c, -1).T @ Gk.reshape(c, -1)).reshape(
                 m_e, m_e, nq, nq).transpose(0, 2, 1, 3)
-    Nt = T.conj().T @ Nc.transpose(0, 2, 1, 3) @ T  # (a, b, i, l)
-    Nr = Nt.transpose(0, 2, 1, 3).real.reshape(m_e * nq, m_e * nq)
-    Nr = 0.5 * (Nr + Nr.T)
-
-    def to_real(rc):
-        return (rc @ T.conj()).real.reshape(-1)  # (T^H r) per a: r_a T^* -> (m_e, nq)
-
-    def predict(theta):
-        th = theta.reshape(m_e, nq)
-        Bm = th[:, :n].T  # (n, m_e) real
-        Dm = th[:, n:].T if nq > n else np.zeros((p, m_e))
-        return apply_model(a_d, Bm, c_d, Dm, data.z, E, modal=(mu, phi, ok))
-
-    solve = _normal_solver(Nr)
-    theta = solve(to_real(rhs_of(Y)))
-    for _ in range(2):  # iterative refinement (semi-normal equations)
-        resid = Y - predict(theta)
-        theta = theta + solve(to_real(rhs_of(resid)))
-    th = theta.reshape(m_e, nq)
-    b_d = th[:, :n].T * data.input_scale[None, :]
-    d_d = (th[:, n:].T if nq > n else np.zeros((p, m_e))) * data.input_scale[None, :]
-    return b_d, d_d
+    return Nc

@@ -28,11 +28,13 @@ from fnsi_lab.ident.core.state_space import (TIME_BASES, Poles, StateSpaceModel,
                                         compute_poles, discrete_to_continuous, frf, make_model,
                                         steady_state_output, transfer_discrete,
                                         underlying_linear_frf)
-from fnsi_lab.ident.core.subspace import (FOLD_GRAM_ENERGY, FoldedLines, SubspaceDecomposition,
-                                     block_rows_for, default_block_rows, default_output_rank,
-                                     fold_repeated_lines, merge_repeated_lines, noise_row_limit,
-                                     output_directions, significant_input_basis, state_matrices,
-                                     subspace_decomposition)
+from fnsi_lab.ident.core.folding import (FOLD_GRAM_ENERGY, FoldedLines, fold_repeated_lines,
+                                         merge_repeated_lines)
+from fnsi_lab.ident.core.subspace import (SubspaceDecomposition, block_rows_for,
+                                          default_block_rows, default_output_rank,
+                                          noise_row_limit, output_directions,
+                                          significant_input_basis, state_matrices,
+                                          subspace_decomposition)
 
 __all__ = ["FrequencyData", "prepare_frequency_data", "SubspaceDecomposition", "Poles",
            "StateSpaceModel", "subspace_decomposition", "default_block_rows", "block_rows_for",

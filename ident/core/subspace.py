@@ -7,13 +7,13 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import cast
 
 import numpy as np
 import scipy.linalg as sla
 
 from fnsi_lab.ident.errors import IdentError
 from fnsi_lab.ident.core.periodic import FrequencyData
+from fnsi_lab.ident.core.folding import fold_repeated_lines, qr_r_factor
 from fnsi_lab.ident.core.weights import LINE_CHUNK, cov_for_svd
 
 
@@ -245,183 +245,12 @@ def _lag_gram(z: np.ndarray, lines: np.ndarray, Wk: np.ndarray, i: int) -> np.nd
     return G.reshape(lags.size, q, q)
 
 
-#: Stacked realisations, folded per line (:func:`fold_repeated_lines`): a line's realisation
-#: components (its SVD) are moved from the QR rows to lag sums, smallest first, while on every
-#: channel (row of ``[E; Y]``) their summed energy stays within this fraction of the channel's
-#: energy over all lines and realisations. Why ``eps``: a Gram sum of parts of energy ``e``
-#: is exact to about ``eps e`` (entrywise, a few ``eps`` times the sum of the absolute
-#: terms), which moves a singular value of the block-Hankel matrix ``M`` by at most
-#: ``sqrt(eps e)`` (Weyl on ``M M^T``); with ``e <= eps ||M_c||^2`` that is ``eps ||M_c||``,
-#: what the Householder QR's own backward error (``O(eps)`` of each row's norm) moves it by
-#: anyway. A larger fraction would resolve less than the QR does (the Gram form's
-#: ``sqrt(eps)``); a smaller one only costs QR rows. No component is dropped.
-FOLD_GRAM_ENERGY = float(np.finfo(float).eps)
 #: The projected Gram form (:func:`_projected_residual_gram`) is not tried when more than
 #: this share of the lines have realisation components inside the ``eps`` energy budget
 #: above (numerically no noise on any channel there): the form needs a noise floor 1e6 times
 #: its round-off (:data:`_GRAM_MIN_FLOOR_RATIO`) and refuses such data, so trying it first
 #: would only add its cost (0.4-0.8 s on ten noise-free SmallSat realisations) to the QR's.
 _FOLD_NOISE_FREE_SHARE = 0.5
-
-
-@dataclass(frozen=True, eq=False)
-class FoldedLines:
-    """Stacked realisations folded per line for the subspace step (:func:`fold_repeated_lines`).
-
-    ``M M^T`` of the block-Hankel data is that of the QR rows ``(z, E, Y)`` plus the lag sums
-    of ``small_gram`` (``sum_k Re[(xi_k xi_k^H) (x) small_gram[k]]``), exactly up to the
-    per-line SVD's round-off.
-
-    Attributes
-    ----------
-    z : complex ndarray, shape (F_q,)
-        Line of each folded row (``z_k`` repeats once per large component of line ``k``).
-    E : complex ndarray, shape (F_q, m_e)
-    Y : complex ndarray, shape (F_q, p)
-        Large components ``s_kj v_kj`` of each line's ``D_k = [E_k; Y_k]`` (q x R), split
-        into their input and output rows.
-    z_unique : complex ndarray, shape (F_u,)
-    small_gram : complex ndarray, shape (F_u, q, q), or None
-        Per line, the Gram ``sum_j s_kj^2 v_kj v_kj^H`` of the components kept out of the QR
-        (their energy is within :data:`FOLD_GRAM_ENERGY` of every channel's); None when
-        every component is large (noisy data).
-    deficient_share : float
-        Share of the lines with such small components (numerically noise-free lines).
-    n_realisations : int
-        ``R``, the number of times every line repeats.
-    """
-
-    z: np.ndarray
-    E: np.ndarray
-    Y: np.ndarray
-    z_unique: np.ndarray
-    small_gram: np.ndarray | None
-    deficient_share: float
-    n_realisations: int
-
-
-def _line_components(z: np.ndarray, lines: np.ndarray, E: np.ndarray, Y: np.ndarray):
-    """Per unique line, the SVD components of the realisations, or None if lines do not repeat.
-
-    Returns
-    -------
-    None, or (z_unique, s, comp)
-        ``z_unique`` (F_u,); ``s`` (F_u, r) singular values of ``D_k`` (descending),
-        ``r = min(R, q)``; ``comp`` (F_u, r, q) the components ``s_kj v_kj`` (columns of a
-        ``G_k`` with ``G_k G_k^H = D_k D_k^H``), ``[E; Y]`` channel order.
-    """
-    _, first, inv, counts = np.unique(lines, return_index=True, return_inverse=True,
-                                      return_counts=True)
-    R = int(counts[0]) if counts.size else 0
-    if R < 2 or counts.min() != counts.max():
-        return None
-    q = E.shape[1] + Y.shape[1]
-    order = np.argsort(inv, kind="stable")
-    A = np.hstack([E, Y])[order].conj().reshape(first.size, R, q)   # D_k^H per line
-    # D_k = V_k S_k U_k^H with A = U S V^H: the components are s_j conj(Vh[j]); U is not needed
-    _, s, Vh = np.linalg.svd(A, full_matrices=False)                # (F_u, r), (F_u, r, q)
-    return z[first], s, s[:, :, None] * Vh.conj()
-
-
-def merge_repeated_lines(z: np.ndarray, lines: np.ndarray, E: np.ndarray, Y: np.ndarray):
-    """The same subspace-step data with each line's realisations folded into ``q`` columns.
-
-    Stacked realisations repeat every line ``R`` times. The subspace step only sees
-    ``sum_k Re[(xi_k xi_k^H) (x) D_k D_k^H]``, ``D_k`` (q x R) the line's ``[E_k; Y_k]``
-    columns, so any ``G_k`` with ``G_k G_k^H = D_k D_k^H`` gives the same ``L22`` (up to an
-    orthogonal factor on the right). ``G_k = R_k^H`` from the QR ``D_k^H = Q_k R_k`` is
-    exact to round-off and has ``q = m_e + p`` columns instead of ``R``: the QR of the block
-    Hankel matrices then costs ``F q`` columns instead of ``F R`` when ``R > q``.
-    :func:`fold_repeated_lines` uses it when no line is rank-deficient.
-
-    Parameters
-    ----------
-    z : ndarray, shape (F,)
-    lines : ndarray of int, shape (F,)
-        DFT line of each row; a line repeats once per realisation.
-    E : ndarray, shape (F, m_e)
-    Y : ndarray, shape (F, p)
-
-    Returns
-    -------
-    z, E, Y : ndarrays, shapes (F', ), (F', m_e), (F', p)
-        ``F' = F_unique q`` rows when every line repeats ``R > q`` times, else the inputs.
-    """
-    m_e = E.shape[1]
-    q = m_e + Y.shape[1]
-    _, first, inv, counts = np.unique(lines, return_index=True, return_inverse=True,
-                                      return_counts=True)
-    R = int(counts[0])
-    if counts.min() != counts.max() or R <= q:
-        return z, E, Y
-    order = np.argsort(inv, kind="stable")
-    A = np.hstack([E, Y])[order].conj().reshape(first.size, R, q)     # D_k^H per line
-    Rk = _qr_r(A)                                                      # (F_u, q, q)
-    X = Rk.conj().reshape(first.size * q, q)                           # rows: columns of R_k^H
-    return np.repeat(z[first], q), X[:, :m_e], X[:, m_e:]
-
-
-def fold_repeated_lines(z: np.ndarray, lines: np.ndarray, E: np.ndarray,
-                        Y: np.ndarray) -> FoldedLines | None:
-    """Stacked realisations folded per line: QR rows for large components, lag sums for the rest.
-
-    docs/ident.md, "Many channels, many realisations".
-
-    ``D_k = [E_k; Y_k]`` (q x R) holds line ``k``'s realisations; the subspace step sees only
-    ``sum_k Re[(xi_k xi_k^H) (x) D_k D_k^H]`` (:func:`merge_repeated_lines`), and
-    ``D_k D_k^H = sum_j s_kj^2 v_kj v_kj^H`` (SVD). Noise-free realisations of a system with
-    ``m_e`` extended inputs are numerically of rank ``m_e`` per line: the other components
-    are round-off or tiny model mismatch, yet they are all the data beyond the model and
-    may not be dropped. Components whose energy, summed over the lines and smallest first,
-    stays within ``FOLD_GRAM_ENERGY = eps`` of every channel's energy enter as lag sums (a
-    Gram form, exact to ``eps`` of their own energy: the QR's round-off level, see
-    :data:`FOLD_GRAM_ENERGY`); the rest are QR rows. Ten noise-free one-period SmallSat
-    realisations (39 outputs, ``m_e = 3``): 3.2 rows per line instead of 10. Noisy data have
-    no small component: their rows stay the realisations themselves (``R <= q``) or the QR
-    fold of :func:`merge_repeated_lines` (``R > q``), bit for bit as before the split.
-
-    Parameters
-    ----------
-    z : complex ndarray, shape (F,)
-        On the unit circle (every time base's line map).
-    lines : int ndarray, shape (F,)
-        DFT line of each row; a line repeats once per realisation.
-    E : complex ndarray, shape (F, m_e)
-    Y : complex ndarray, shape (F, p)
-
-    Returns
-    -------
-    FoldedLines or None
-        None when no line repeats, lines repeat unevenly, ``z`` leaves the unit circle (the
-        lag sums assume ``|z_k| = 1``), or nothing would shrink (no small component and
-        ``R <= q``). With no small component and ``R > q``, the rows are those of
-        :func:`merge_repeated_lines` (the QR fold, as before the split existed).
-    """
-    parts = _line_components(z, lines, E, Y)
-    if parts is None or not np.allclose(np.abs(parts[0]), 1.0, rtol=0, atol=1e-12):
-        return None
-    zu, s, comp = parts
-    m_e, q = E.shape[1], comp.shape[2]
-    energy = np.abs(comp) ** 2                                         # (F_u, r, q)
-    budget = FOLD_GRAM_ENERGY * energy.sum(axis=(0, 1))                # per channel
-    by_size = np.argsort(s, axis=None, kind="stable")                   # smallest first
-    within = np.all(np.cumsum(energy.reshape(-1, q)[by_size], axis=0) <= budget, axis=1)
-    small = np.zeros(s.size, bool)
-    small[by_size[:int(np.argmin(within)) if not within.all() else s.size]] = True
-    small = small.reshape(s.shape)
-    R = int(lines.size // zu.size)
-    if not small.any():  # noisy: every component is a QR row, as the plain fold gives them
-        if R <= q:
-            return None
-        z_rows, E_rows, Y_rows = merge_repeated_lines(z, lines, E, Y)
-        return FoldedLines(z=z_rows, E=E_rows, Y=Y_rows, z_unique=zu, small_gram=None,
-                           deficient_share=0.0, n_realisations=R)
-    X = comp[~small]                                                    # (F_q, q) QR rows
-    cs = comp * small[:, :, None]
-    return FoldedLines(z=np.broadcast_to(zu[:, None], s.shape)[~small], E=X[:, :m_e],
-                       Y=X[:, m_e:], z_unique=zu,
-                       small_gram=np.einsum("kjc,kjd->kcd", cs, cs.conj(), optimize=True),
-                       deficient_share=float(np.mean(small.any(axis=1))), n_realisations=R)
 
 
 def _lag_sum_hankel_gram(z: np.ndarray, grams: np.ndarray, i: int, m_e: int) -> np.ndarray:
@@ -491,12 +320,6 @@ def significant_input_basis(Me: np.ndarray, tol: float = INPUT_RANK_TOL) -> np.n
     return U[:, sv > tol * sv[0]]
 
 
-def _qr_r(a: np.ndarray) -> np.ndarray:
-    """``R`` of the QR decomposition of ``a`` (stacked over leading axes): numpy's stubs
-    type every mode of ``qr`` as the ``(Q, R)`` result; ``mode='r'`` returns ``R`` alone."""
-    return cast(np.ndarray, np.linalg.qr(a, mode="r"))
-
-
 def _truncated_input_residual(MT: np.ndarray, n_in: int) -> np.ndarray:
     """``L22`` (lower triangular, ``(n_y, n_y)``) of ``MT = [Me, My]`` with ``My`` projected
     out of the significant input space only (:func:`significant_input_basis`)."""
@@ -504,7 +327,7 @@ def _truncated_input_residual(MT: np.ndarray, n_in: int) -> np.ndarray:
     U = significant_input_basis(Me)
     R = My - U @ (U.T @ My)
     R = R - U @ (U.T @ R)          # twice is enough (Kahan-Parlett reorthogonalisation)
-    r = _qr_r(R)
+    r = qr_r_factor(R)
     out = np.zeros((My.shape[1], My.shape[1]))
     out[:r.shape[0]] = r
     return out.T
@@ -656,13 +479,44 @@ def subspace_decomposition(data: FrequencyData, *, max_order: int, block_rows: i
     ``Gamma_i = C_Y^{1/2} U S^{1/2}``, ``C_Y = sum_k Re[(xi_k xi_k^H) (x) Sigma_Y(k)]``.
     With ``W`` (``output_rank``) the same on ``Y W`` and ``W^T Sigma_Y W``.
     """
-    p_all, m_e, F = data.n_outputs, data.n_extended_inputs, data.n_lines
+    p_all, m_e = data.n_outputs, data.n_extended_inputs
     max_order = int(max_order)
     if max_order < 1:
         raise IdentError(f"max_order must be >= 1, got {max_order}")
     if method not in ("auto", "qr", "gram"):
         raise IdentError(f"method {method!r} is not one of 'auto', 'qr', 'gram'")
     t0 = time.perf_counter()
+    W, Y, i = _compressed_outputs(data, max_order, block_rows, output_rank)
+    p = Y.shape[1]
+    t_w = time.perf_counter()
+    L22, S22, method, t_f = _residual_block(data, Y, i, max_order, method)
+    t1 = time.perf_counter()
+    cov = cov_for_svd(data, weighted)
+    if cov is not None and W is not None:  # W^T Sigma_k W, per line
+        cov = (np.einsum("ai,ka,aj->kij", W, cov, W, optimize=True) if cov.ndim == 2
+               else W.T @ cov @ W)
+    obs, S = _weighted_observability(data, L22, S22, cov, i, p, max_order, method)
+    ncols = obs.shape[1]
+    t2 = time.perf_counter()
+    return SubspaceDecomposition(shift_weight=_shift_weight(cov), singular_values=S,
+                                 observability=obs, block_rows=i,
+                                 max_order=ncols, n_outputs=p_all, n_extended_inputs=m_e,
+                                 weighted=cov is not None, output_basis=W,
+                                 timings_s={"compress": t_w - t0, "fold": t_f - t_w,
+                                            method: t1 - t_f, "svd": t2 - t1})
+
+
+def _compressed_outputs(data: FrequencyData, max_order: int, block_rows: int | None,
+                        output_rank: int | str | None):
+    """The output directions ``W`` (None: every channel), the outputs the subspace step sees
+    (``Y W``, shape (F, r)) and the block rows ``i``, checked against the size rules.
+
+    Raises
+    ------
+    IdentError
+        If ``i < 2``, ``(i - 1) p < n_max`` or ``2F < i (m_e + p)``.
+    """
+    p_all, m_e, F = data.n_outputs, data.n_extended_inputs, data.n_lines
     rank = (default_output_rank(p_all, max_order, m_e) if output_rank == "auto"
             else None if output_rank is None else int(output_rank))
     W = output_directions(data.Y, rank) if rank is not None and rank < p_all else None
@@ -678,7 +532,25 @@ def subspace_decomposition(data: FrequencyData, *, max_order: int, block_rows: i
     if 2 * F < i * (m_e + p):
         raise IdentError(f"too few lines: 2F = {2 * F} < block_rows * (m_e + p) = "
                          f"{i * (m_e + p)} (widen band_hz, lower block_rows or max order)")
-    t_w = time.perf_counter()
+    return W, Y, i
+
+
+def _residual_block(data: FrequencyData, Y: np.ndarray, i: int, max_order: int, method: str):
+    """``L22`` (QR) or its Gram form ``S22 = L22 L22^T``, by the method
+    :func:`subspace_decomposition` documents.
+
+    Returns
+    -------
+    L22 : ndarray, shape (i p, i p), or None
+        Lower triangular; None when a Gram form ran.
+    S22 : ndarray, shape (i p, i p), or None
+        None when the QR ran.
+    method : str
+        The method that ran: ``'qr'``, ``'gram'`` or ``'projected'``.
+    t_fold : float
+        ``time.perf_counter()`` when the realisations were folded.
+    """
+    m_e, p = data.n_extended_inputs, Y.shape[1]
     # stacked realisations: per line, the large SVD components as QR rows and the rest as
     # lag sums (exact to the QR's round-off, fold_repeated_lines)
     fold = (fold_repeated_lines(data.z, data.lines, data.E, Y) if method != "gram" else None)
@@ -705,11 +577,19 @@ def subspace_decomposition(data: FrequencyData, *, max_order: int, block_rows: i
         L22 = None
         if S22 is None:  # method 'gram'
             S22 = _hankel_residual_gram(data.z, data.lines, data.E, Y, i)  # L22 L22^T
-    t1 = time.perf_counter()
-    cov = cov_for_svd(data, weighted)
-    if cov is not None and W is not None:  # W^T Sigma_k W, per line
-        cov = (np.einsum("ai,ka,aj->kij", W, cov, W, optimize=True) if cov.ndim == 2
-               else W.T @ cov @ W)
+    return L22, S22, method, t_f
+
+
+def _weighted_observability(data: FrequencyData, L22, S22, cov, i: int, p: int, max_order: int,
+                            method: str):
+    """``Gamma_i = C_Y^{1/2} U S^{1/2}`` from ``C_Y^{-1/2} L22 = U S V^T`` (or the leading
+    eigenvectors of the weighted Gram form), ``C_Y = sum_k Re[(xi_k xi_k^H) (x) Sigma_Y(k)]``.
+
+    Returns
+    -------
+    observability : ndarray, shape (i p, min((i - 1) p, columns of U))
+    singular_values : ndarray
+    """
     cy_sqrt = None
     if cov is not None:
         lags = np.arange(-(i - 1), i)
@@ -741,8 +621,12 @@ def subspace_decomposition(data: FrequencyData, *, max_order: int, block_rows: i
     if cy_sqrt is not None:
         U = cy_sqrt @ U
     ncols = min((i - 1) * p, U.shape[1])
-    obs = U[:, :ncols] * np.sqrt(S[:ncols])
-    t2 = time.perf_counter()
+    return U[:, :ncols] * np.sqrt(S[:ncols]), S
+
+
+def _shift_weight(cov) -> np.ndarray | None:
+    """``Sigma_mean^{-1/2}``: the mean noise covariance as block weight of the shift
+    equations (None unweighted)."""
     shift_w = None
     if cov is not None:  # mean noise covariance -> block weight of the shift equations
         sm = np.diag(cov.mean(axis=0)) if cov.ndim == 2 else np.real(cov.mean(axis=0))
@@ -750,12 +634,7 @@ def subspace_decomposition(data: FrequencyData, *, max_order: int, block_rows: i
         ws, vs = np.linalg.eigh(sm)
         ws = np.maximum(ws, ws.max() * 1e-12)
         shift_w = (vs / np.sqrt(ws)) @ vs.T
-    return SubspaceDecomposition(shift_weight=shift_w, singular_values=S, observability=obs,
-                                 block_rows=i,
-                                 max_order=ncols, n_outputs=p_all, n_extended_inputs=m_e,
-                                 weighted=cov is not None, output_basis=W,
-                                 timings_s={"compress": t_w - t0, "fold": t_f - t_w,
-                                            method: t1 - t_f, "svd": t2 - t1})
+    return shift_w
 
 
 def state_matrices(decomp: SubspaceDecomposition, order: int) -> tuple[np.ndarray, np.ndarray]:

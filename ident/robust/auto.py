@@ -140,18 +140,8 @@ def identify_auto(data, options: AutoOptions | dict | None = None, *,
     §6 (reduction), §7 (threshold), §8.3 and §8.5 (band choices, confidence).
     """
     from fnsi_lab.ident.core import fnsi
-    from fnsi_lab.ident.robust.reduction import reduce_model
 
-    if options is None:
-        options = AutoOptions()
-    elif isinstance(options, dict):
-        options = AutoOptions.from_dict(options)
-    options = options.validate()
-    orders = sorted({int(n) for n in orders})
-    if not orders or orders[0] < 1:
-        raise IdentError(f"orders must be positive integers, got {orders!r}")
-    sweep = sorted(set(orders) | ({int(reduce_at) + k for k in range(-2, 3)} - {0, -1}
-                                   if reduce_at is not None else set()))
+    options, orders, sweep = _checked_request(options, orders, reduce_at)
     t0 = time.perf_counter()
     timings: dict[str, float] = {}
 
@@ -162,48 +152,16 @@ def identify_auto(data, options: AutoOptions | dict | None = None, *,
     ic_mask, ic_band = osel.ic_line_mask(data.frequencies_hz, data.excited, data.n_outputs,
                                          options.ic_band)
     boi = _band_of_interest(data, options)
-    bar = _progress(progress, len(sweep))
-    models: dict[int, Any] = {}
-    v = {}
-    stable = {}
     t1 = time.perf_counter()
-    for n in sweep:
-        model = model_at_order_fast(decomp, data, n, d_zero=options.d_zero,
-                                     weighted_bd=options.sweep_bd == "weighted")
-        models[n] = model
-        stable[n] = bool(model.stable)
-        if n in orders:
-            v[n] = model_error(model, data, ic_mask)
-        bar.update(1, note=f"n={n}")
+    models, v, stable = _sweep_models(decomp, data, sweep, orders, ic_mask, options,
+                                      _progress(progress, len(sweep)))
     timings["sweep"] = time.perf_counter() - t1
 
     t2 = time.perf_counter()
-    ic = osel.InformationCriterion.from_errors(
-        orders, [v[n] for n in orders], [stable[n] for n in orders], int(ic_mask.sum()),
-        band=ic_band, criterion=options.criterion, n_outputs=data.n_outputs,
-        n_extended_inputs=data.n_extended_inputs, d_zero=options.d_zero)
-    n_sel = ic.selected_order
-    rho = np.full(len(orders), np.nan)
-    consistent = np.zeros(len(orders), bool)
-    how = "ic"
-    if spread is not None and options.order_selection == "consistent":
-        for k, n in enumerate(orders):
-            if ic.stable[k]:
-                rho[k] = spread(models[n])
-        if np.any(np.isfinite(rho)):
-            n_sel, consistent = osel.select_order_consistent(
-                orders, ic.value, ic.stable, rho, options.spread_factor)
-            how = "consistent"
-
-    # stabilisation over the sweep, modes of each order (one per pair, not at Nyquist)
-    fl, zl, sl = [], [], []
-    for n in sweep:
-        p = models[n].poles
-        idx = np.flatnonzero(p.is_mode)
-        fl.append(p.natural_frequency_hz[idx])
-        zl.append(p.damping_ratio[idx])
-        sl.append(p.mode_shapes[:, idx])
-    diagram = stab.classify_stabilisation(sweep, fl, zl, sl, band_hz=(0.0, np.inf),
+    ic, n_sel, rho, consistent, how = _select_order(data, orders, models, v, stable, ic_mask,
+                                                    ic_band, options, spread)
+    modes = _sweep_modes(models, sweep)
+    diagram = stab.classify_stabilisation(sweep, *modes, band_hz=(0.0, np.inf),
                                           freq_tol=options.freq_tol,
                                           damping_tol=options.damping_tol,
                                           mac_tol=options.mac_tol,
@@ -222,16 +180,141 @@ def identify_auto(data, options: AutoOptions | dict | None = None, *,
     # stabilisation classes are looked up by frequency in the sweep's model at n_mdi: exactly
     # for that model, within the stabilisation tolerance for a re-estimated one
     match_tol = 1e-6 if answer_rows is None else options.freq_tol
-    mu, lam, ch, bh, ch_d, bh_d = modal_form(full)
+    modal = modal_form(full)
+    md, weights, oweights = _modal_dominancy(data, full, modal, boi, options)
+    cls = _classes_at_order(diagram, sweep, modes, n_mdi, md.frequency_hz, match_tol, options)
+    cls_arr = np.array(cls, object)
+    sel = _mdi_selection(md, modal[1], modal[2], modal[3], weights, oweights, cls_arr, options)
+    gates = _detection_gates(full, data, md, modal, sel, options)
+    physical = gates["physical"]
+    timings["mdi"] = time.perf_counter() - t3
+    disagree, final_ratio = _disagreements(data, md, cls_arr, sel, gates, options)
+
+    # reduction
+    t4 = time.perf_counter()
+    reduced, plausible_oob = _reduce(full, data, md, modal[0], physical, cls_arr, gates["detection"],
+                                     options)
+    final, answer, rho_full, rho_reduced = _choose_answer(full, reduced, spread, options)
+    timings["reduction"] = time.perf_counter() - t4
+
+    conf = _confidence(answer, boi, physical, disagree, sel["threshold"], final_ratio, n_sel,
+                       orders, options)
+    coefs = _coefficients(coefficients, models[n_sel], full, reduced, timings)
+    timings["total"] = time.perf_counter() - t0
+
+    thr = sel["threshold"]
+    return AutoResult(information_criterion=ic, selected_order=n_sel, stabilisation=diagram_boi,
+                      mdi_order=n_mdi, modal_dominancy=md, candidates=sel["candidates"],
+                      physical=physical, threshold=thr, separation_ratio=thr.separation_ratio,
+                      confidence=conf, model=models[n_sel], full_model=full, reduced=reduced,
+                      coefficients=coefs, options=options,
+                      groups=tuple(tuple(g) for g in sel["groups"]),
+                      stab_class_at_mdi_order=tuple(cls), timings_s=timings, models=models,
+                      ic_order=ic.selected_order, coefficient_spread=rho,
+                      consistent=consistent, order_selection=how,
+                      detection=gates["detection"], final=final,
+                      final_spread={"full": rho_full, "reduced": rho_reduced},
+                      plausible_out_of_band=plausible_oob, answer_block_rows=answer_rows)
+
+
+def _modal_dominancy(data, full, modal, boi, options):
+    """The MDI of every mode of ``full`` (docs/method.md §5) and the input and output weights
+    it was computed with."""
+    _, lam, ch, bh, _, _ = modal
     weights = mdi_mod.input_weights(data.E_physical, data.n_inputs, options.input_scaling)
     oweights = mdi_mod.output_weights(data.Y, options.output_scaling, data.noise_cov)
     md = mdi_mod.modal_dominancy(lam, ch, bh, boi, norm=options.mdi_norm, weights=weights,
                                  nyquist_hz=full.sample_rate_hz / 2, out_weights=oweights)
-    # stabilisation class of each MDI mode: match by frequency to this order's entries
-    # class at n_mdi against the previous orders and, for poles that are 'new' there, against
-    # the next orders too (docs/method.md §4: "previous (or next) order"): a mode that first appears at
-    # n_mdi and persists above it is not vetoed
-    rank = {"none": -1, "new": 0, "frequency": 1, "damping": 2, "mode": 3, "stable": 4}
+    return md, weights, oweights
+
+
+def _checked_request(options: AutoOptions | dict | None, orders: Sequence[int],
+                     reduce_at: int | None) -> tuple[AutoOptions, list[int], list[int]]:
+    """Validated options, the sorted orders of the criterion and the sweep (orders plus
+    ``reduce_at - 2 .. reduce_at + 2``)."""
+    if options is None:
+        options = AutoOptions()
+    elif isinstance(options, dict):
+        options = AutoOptions.from_dict(options)
+    options = options.validate()
+    orders = sorted({int(n) for n in orders})
+    if not orders or orders[0] < 1:
+        raise IdentError(f"orders must be positive integers, got {orders!r}")
+    sweep = sorted(set(orders) | ({int(reduce_at) + k for k in range(-2, 3)} - {0, -1}
+                                   if reduce_at is not None else set()))
+    return options, orders, sweep
+
+
+def _sweep_models(decomp, data, sweep: list[int], orders: list[int], ic_mask: np.ndarray,
+                  options: AutoOptions, bar: Progress
+                  ) -> tuple[dict[int, Any], dict[int, float], dict[int, bool]]:
+    """The model of every order of the sweep, its stability and (for the criterion's orders)
+    its error ``V(n)`` on the criterion's lines."""
+    models: dict[int, Any] = {}
+    v: dict[int, float] = {}
+    stable: dict[int, bool] = {}
+    for n in sweep:
+        model = model_at_order_fast(decomp, data, n, d_zero=options.d_zero,
+                                     weighted_bd=options.sweep_bd == "weighted")
+        models[n] = model
+        stable[n] = bool(model.stable)
+        if n in orders:
+            v[n] = model_error(model, data, ic_mask)
+        bar.update(1, note=f"n={n}")
+    return models, v, stable
+
+
+def _select_order(data, orders, models, v, stable, ic_mask, ic_band, options, spread):
+    """The information criterion and the selected order (``argmin I``, or the consistency
+    gate when ``spread`` is given and ``order_selection='consistent'``).
+
+    Returns
+    -------
+    ic, n_sel, rho (coefficient spread per order), consistent (bool per order), how
+    """
+    ic = osel.InformationCriterion.from_errors(
+        orders, [v[n] for n in orders], [stable[n] for n in orders], int(ic_mask.sum()),
+        band=ic_band, criterion=options.criterion, n_outputs=data.n_outputs,
+        n_extended_inputs=data.n_extended_inputs, d_zero=options.d_zero)
+    n_sel = ic.selected_order
+    rho = np.full(len(orders), np.nan)
+    consistent = np.zeros(len(orders), bool)
+    how = "ic"
+    if spread is not None and options.order_selection == "consistent":
+        for k, n in enumerate(orders):
+            if ic.stable[k]:
+                rho[k] = spread(models[n])
+        if np.any(np.isfinite(rho)):
+            n_sel, consistent = osel.select_order_consistent(
+                orders, ic.value, ic.stable, rho, options.spread_factor)
+            how = "consistent"
+    return ic, n_sel, rho, consistent, how
+
+
+def _sweep_modes(models, sweep):
+    """Frequencies (Hz), damping ratios and mode shapes of each order's modes (one per pair,
+    not at Nyquist), lists in the sweep's order."""
+    fl, zl, sl = [], [], []
+    for n in sweep:
+        p = models[n].poles
+        idx = np.flatnonzero(p.is_mode)
+        fl.append(p.natural_frequency_hz[idx])
+        zl.append(p.damping_ratio[idx])
+        sl.append(p.mode_shapes[:, idx])
+    return fl, zl, sl
+
+
+_CLASS_RANK = {"none": -1, "new": 0, "frequency": 1, "damping": 2, "mode": 3, "stable": 4}
+
+
+def _classes_at_order(diagram, sweep, modes, n_mdi, frequency_hz, match_tol, options):
+    """Stabilisation class of each MDI mode, matched by frequency to the order ``n_mdi``.
+
+    The class at ``n_mdi`` against the previous orders and, for poles that are 'new' there,
+    against the next orders too (docs/method.md §4: "previous (or next) order"): a mode that
+    first appears at ``n_mdi`` and persists above it is not vetoed.
+    """
+    fl, zl, sl = modes
     st_o = diagram.by_order(n_mdi)
     nxt = [n for n in sweep if n > n_mdi][:options.stab_lookback]
     st_f = None
@@ -252,10 +335,21 @@ def identify_auto(data, options: AutoOptions | dict | None = None, *,
         return st.classes[k] if abs(st.frequency_hz[k] - f) <= match_tol * max(f, 1e-12) else "none"
 
     cls = []
-    for f in md.frequency_hz:
+    for f in frequency_hz:
         cb, cf = class_of(st_o, f), class_of(st_f, f)
-        cls.append(cb if rank[cb] >= rank[cf] or cb == "none" else cf)
-    cls_arr = np.array(cls, object)
+        cls.append(cb if _CLASS_RANK[cb] >= _CLASS_RANK[cf] or cb == "none" else cf)
+    return cls
+
+
+def _mdi_selection(md, lam, ch, bh, weights, oweights, cls_arr, options) -> dict:
+    """Physical modes by the MDI threshold, the stabilisation rescue and veto (docs/method.md §7).
+
+    Returns
+    -------
+    dict
+        ``candidates``, ``values`` (the norm's MDI), ``groups``, ``threshold``, ``physical``,
+        ``rescued``, ``vetoed`` (bool per mode) and ``fallback`` (no clear gap).
+    """
     # eligible for the gap search: stable, in the band of interest, not at Nyquist (docs/method.md §7.1);
     # stabilisation acts afterwards as a veto (docs/method.md §8.5), so spurious poles still populate
     # the lower side of the gap and genuine modes are not split among themselves
@@ -295,6 +389,21 @@ def identify_auto(data, options: AutoOptions | dict | None = None, *,
         physical |= rescued
     vetoed = physical & veto
     physical &= ~veto
+    return {"candidates": cand, "values": values, "groups": groups, "threshold": thr,
+            "physical": physical, "rescued": rescued, "vetoed": vetoed, "fallback": fallback}
+
+
+def _detection_gates(full, data, md, modal, sel, options) -> dict:
+    """The MDI selection after the detectability and mains-hum gates (docs/method.md §8.5).
+
+    Returns
+    -------
+    dict
+        ``physical``, ``detection`` (per mode, in noise sigmas), ``undetectable``,
+        ``unresolved`` and ``hum`` (bool per mode).
+    """
+    mu, _, _, _, ch_d, bh_d = modal
+    physical, rescued = sel["physical"].copy(), sel["rescued"]
     # detectability: in its own bandwidth a mode must stand out of the model's residual
     # (docs/method.md §8.5); nested models of one SVD keep noise-fitting poles "stable" across
     # orders, so stability alone does not make a mode
@@ -324,7 +433,16 @@ def identify_auto(data, options: AutoOptions | dict | None = None, *,
         at_mains |= (h >= 1) & (np.abs(md.frequency_hz - h * f_m) <= 3 * line_hz)
     hum = unresolved & at_mains
     physical &= ~hum
-    timings["mdi"] = time.perf_counter() - t3
+    return {"physical": physical, "detection": detection, "undetectable": undetectable,
+            "unresolved": unresolved, "hum": hum}
+
+
+def _disagreements(data, md, cls_arr, sel, gates, options):
+    """Where the MDI, stabilisation and detection disagree (the confidence's evidence), and
+    the separation ratio of the final selection among the candidates."""
+    physical, undetectable = gates["physical"], gates["undetectable"]
+    unresolved, hum, detection = gates["unresolved"], gates["hum"], gates["detection"]
+    rescued, vetoed, cand, values = sel["rescued"], sel["vetoed"], sel["candidates"], sel["values"]
     inb = md.in_band
     disagree = {
         "kept_not_stabilised": sorted(md.frequency_hz[physical & (cls_arr == "new")].tolist()),
@@ -336,7 +454,7 @@ def identify_auto(data, options: AutoOptions | dict | None = None, *,
         "excluded_unstable": int(np.sum(inb & ~md.stable)),
         "below_residual": sorted(md.frequency_hz[undetectable].tolist()),
     }
-    disagree["fallback"] = bool(fallback)
+    disagree["fallback"] = bool(sel["fallback"])
     kept_v, drop_v = values[physical & cand], values[~physical & cand]
     final_ratio = (float(kept_v.min() / drop_v.max()) if kept_v.size and drop_v.size
                    and drop_v.max() > 0 else float("inf") if kept_v.size else float("nan"))
@@ -345,13 +463,20 @@ def identify_auto(data, options: AutoOptions | dict | None = None, *,
     disagree["marginal_detection"] = sorted(md.frequency_hz[
         physical & (detection < 2 * options.detection_sigma)].tolist())
     disagree["noise_source"] = getattr(data, "noise_source", "none")
+    return disagree, final_ratio
 
-    # reduction
-    t4 = time.perf_counter()
+
+def _reduce(full, data, md, mu, physical, cls_arr, detection, options):
+    """The reduced model (None when every or no pole is kept) and the plausible out-of-band
+    modes.
+
+    Poles kept in the reduced model: the physical in-band modes and the stable poles outside
+    the band per ``out_of_band``; unstable and Nyquist poles are always removed
+    (docs/method.md §7.1).
+    """
+    from fnsi_lab.ident.robust.reduction import reduce_model
+
     reduced = None
-    # poles kept in the reduced model: the physical in-band modes and the stable poles
-    # outside the band per out_of_band; unstable and Nyquist poles are always removed
-    # (docs/method.md §7.1)
     nyq = np.abs(md.eigenvalues.imag) >= 0.999 * np.pi * full.sample_rate_hz
     plausible_oob = (~md.in_band & md.stable & ~nyq & (cls_arr != "new") & (cls_arr != "none")
                      & (detection >= options.detection_sigma))
@@ -370,8 +495,17 @@ def identify_auto(data, options: AutoOptions | dict | None = None, *,
             keep_mask[list(md.members[i])] = True
         reduced = reduce_model(full, data, keep_mask, d_zero=options.d_zero,
                                weighted=options.weighted)
-    # the answer: the reduced model, unless the reduction made the coefficients less
-    # consistent than the model it came from (then removing those poles cost information)
+    return reduced, plausible_oob
+
+
+def _choose_answer(full, reduced, spread, options):
+    """The answer: the reduced model, unless the reduction made the coefficients less
+    consistent than the model it came from (then removing those poles cost information).
+
+    Returns
+    -------
+    final ('full' or 'reduced'), answer model, rho_full, rho_reduced
+    """
     final, answer = "full", full
     rho_full = rho_reduced = float("nan")
     if reduced is not None:
@@ -383,10 +517,13 @@ def identify_auto(data, options: AutoOptions | dict | None = None, *,
             # spurious in-band poles for a 1 % smaller spread (Silverbox, docs/robust.md)
             if np.isfinite(rho_full) and not rho_reduced <= options.spread_factor * rho_full:
                 final, answer = "full", full
-    timings["reduction"] = time.perf_counter() - t4
+    return final, answer, rho_full, rho_reduced
 
-    # confidence, judged on the answer: a model that keeps poles in the band of interest
-    # that are not physical modes, or modes barely above the residual, is not "clear"
+
+def _confidence(answer, boi, physical, disagree, thr, final_ratio, n_sel, orders, options):
+    """The confidence statement, judged on the answer: a model that keeps poles in the band
+    of interest that are not physical modes, or modes barely above the residual, is not
+    "clear"; a selected order at the end of the sweep adds a warning."""
     ans = answer.poles
     n_inband_answer = int(np.sum(ans.is_mode & (ans.natural_frequency_hz >= boi[0])
                                  & (ans.natural_frequency_hz <= boi[1])))
@@ -401,27 +538,20 @@ def identify_auto(data, options: AutoOptions | dict | None = None, *,
             f"the selected order {n_sel} is the last of the sweep {min(orders)}..{max(orders)}: "
             "the criterion may keep decreasing beyond it; extend the sweep (e.g. --orders "
             f"{min(orders)}:{2 * max(orders)}) or check the band and the noise")
+    return conf
 
+
+def _coefficients(coefficients, selected, full, reduced, timings) -> dict:
+    """``coefficients(model)`` of the selected, full and reduced models (empty without it)."""
     coefs: dict = {}
     if coefficients is not None:
         t5 = time.perf_counter()
-        coefs["selected"] = coefficients(models[n_sel])
+        coefs["selected"] = coefficients(selected)
         coefs["full"] = coefficients(full)
         if reduced is not None:
             coefs["reduced"] = coefficients(reduced)
         timings["coefficients"] = time.perf_counter() - t5
-    timings["total"] = time.perf_counter() - t0
-
-    return AutoResult(information_criterion=ic, selected_order=n_sel, stabilisation=diagram_boi,
-                      mdi_order=n_mdi, modal_dominancy=md, candidates=cand, physical=physical,
-                      threshold=thr, separation_ratio=thr.separation_ratio, confidence=conf,
-                      model=models[n_sel], full_model=full, reduced=reduced, coefficients=coefs,
-                      options=options, groups=tuple(tuple(g) for g in groups),
-                      stab_class_at_mdi_order=tuple(cls), timings_s=timings, models=models,
-                      ic_order=ic.selected_order, coefficient_spread=rho,
-                      consistent=consistent, order_selection=how, detection=detection,
-                      final=final, final_spread={"full": rho_full, "reduced": rho_reduced},
-                      plausible_out_of_band=plausible_oob, answer_block_rows=answer_rows)
+    return coefs
 
 
 def _answer_model(decomp, data, sweep_model, order: int, options: AutoOptions):
