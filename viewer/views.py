@@ -127,6 +127,11 @@ def summary_rows(update: ServiceUpdate) -> list[tuple[str, str]]:
             if exact:
                 text += f" (error {100 * (mean - exact) / exact:+.3f} %)"
             rows.append((f"{name}, {which} model", text))
+    for c in ai.identification.coefficients:   # how far the answer's values can be trusted
+        if c.get("verdict"):
+            reason = c.get("verdict_reason") if c["verdict"] != "identified" else None
+            rows.append((f"{c['name']}, verdict", str(c["verdict"])
+                         + (f" ({reason})" if reason else "")))
     return rows
 
 
