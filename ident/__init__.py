@@ -26,8 +26,12 @@ Modules
 ``basis``         nonlinear basis functions and extended input
 ``fnsi``          one QR + one SVD, every order; B/D least squares; CT conversion; FRFs
 ``coefficients``  nonlinear coefficients by signed reciprocity (docs/method.md §2.3)
-``pipeline``      the entry point and its frozen answer :class:`Identification`
-                  (``result``: the answer's :class:`Mode` and :class:`Coefficient` records)
+``pipeline``      the entry point; ``identification`` its frozen answer
+                  :class:`Identification` and the JSON (``result``: the answer's :class:`Mode`
+                  and :class:`Coefficient` records); ``fit`` FNSI at an order or the robust
+                  pipeline; ``refinement`` the output-error refinement's decision and start;
+                  ``linear_comparison`` the answer against the linear fit;
+                  ``coefficient_summaries`` the coefficients with their verdicts
 ``output_error``  the answer refined on the model's own periodic steady state
                   (``harmonic_balance``: that steady state; ``modal``: the model's parameters)
 ``config``, ``io``, ``cli``  the ``fnsi-lab ident`` command

@@ -270,8 +270,8 @@ def test_refine_none_keeps_fnsi_and_a_failed_refinement_says_so(monkeypatch):
 
     def fails(*args, **kwargs):
         raise IdentError("the harmonic balance of the model did not converge")
-    import fnsi_lab.ident.pipeline as pipeline
-    monkeypatch.setattr(pipeline, "refine_output_error", fails)
+    import fnsi_lab.ident.refinement as refinement
+    monkeypatch.setattr(refinement, "refine_output_error", fails)
     res = fnsi_lab.identify(src, _config(), order=6)
     j = res.to_json()
     assert res.output_error is None and not j["output_error"]["applied"]
@@ -318,7 +318,7 @@ def test_a_pole_the_output_error_does_not_determine_is_dropped(fnsi_chain):
 
 
 def test_omitted_mode_evidence_finds_a_mode_left_in_the_residual(fnsi_chain):
-    """The score test behind the split-mode check (ident.pipeline): a pole where the chain
+    """The score test behind the split-mode check (ident.refinement): a pole where the chain
     has no mode (45 Hz) explains what noise gives, about one noise variance per output
     (3 outputs; the mode's 14 parameters are the threshold, a Gamma(3, 1) variable exceeds
     it with probability 1e-4); the contribution of one of the fit's own modes put back into

@@ -11,7 +11,9 @@ least squares), ``weights`` (noise weights), ``models`` (a model of a given orde
 ``state_space`` (the model, its poles, continuous time, FRFs), with ``fnsi`` as their public
 face; ``coefficients`` (nonlinear coefficients by signed reciprocity), ``regressors`` (their
 conditioning), ``units``, ``time_base`` (the line map of a fixed-order model), ``distortion``
-(best linear approximation, noise and distortion levels), ``io`` (arrays in),
+(noise and distortion levels of a record, verdicts; with ``bla`` the best linear
+approximation, ``distortion_windows`` the F tests, ``resonances``, ``distortion_records``
+and ``level_comparison`` the records compared by level), ``io`` (arrays in),
 ``model_json`` (a model rebuilt from a result) and ``result`` (the answer's typed records:
 ``Mode``, ``Coefficient``).
 """

@@ -37,8 +37,8 @@ import numpy as np
 from fnsi_lab.ident.core.fnsi import StateSpaceModel
 from fnsi_lab.ident.core.periodic import FrequencyData, smooth_lines
 
-if TYPE_CHECKING:   # the pipeline imports this module
-    from fnsi_lab.ident.pipeline import Identification
+if TYPE_CHECKING:   # the identification imports this module
+    from fnsi_lab.ident.identification import Identification
 
 __all__ = ["SIGNIFICANCE", "MODE_MATCH", "NestedTest", "weighted_residual", "parameter_count",
            "nested_test", "match_modes"]

@@ -1,0 +1,100 @@
+"""FNSI's answer on a session, before any refinement: the model at a fixed order or the
+robust automatic pipeline over an order sweep (:func:`fit_session`, its :class:`Fit`), and
+the physical modes of an answer (:func:`answer_modes`).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+from typing import Any, NamedTuple, Sequence
+
+import numpy as np
+
+from fnsi_lab.ident.coefficient_summaries import (coefficient_summaries, driving_points,
+                                                  session_coefficient_spectra)
+from fnsi_lab.ident.core.coefficients import spread_function
+from fnsi_lab.ident.core.fnsi import (StateSpaceModel, SubspaceDecomposition, model_at_order,
+                                      subspace_decomposition)
+from fnsi_lab.ident.core.result import Mode
+from fnsi_lab.ident.refine.output_error import OutputErrorFit
+from fnsi_lab.ident.robust.auto_result import AutoResult
+from fnsi_lab.ident.session import IdentSession
+
+__all__ = ["Fit", "fit_session", "answer_modes"]
+
+
+class Fit(NamedTuple):
+    """FNSI's answer before the refinement, the coefficients and the nested test: the first
+    fields of an :class:`Identification`."""
+
+    model: StateSpaceModel
+    method: str
+    auto: AutoResult | None = None
+    decomposition: SubspaceDecomposition | None = None
+
+
+def fit_session(session: IdentSession, *, order: int | None, sweep: Sequence[int],
+                reduce_at: int | None, max_order: int | None, block_rows: int | None,
+                progress: Any = None) -> Fit:
+    """FNSI at the fixed ``order``, or the robust pipeline over ``sweep``, on the session's data
+    (no refinement, no coefficients yet)."""
+    cfg = session.config
+    block_rows = block_rows or cfg.block_rows
+    dp = driving_points(session)
+    if order is not None:
+        max_order = max(int(order), max_order or cfg.max_order or int(order))
+        t1 = time.perf_counter()
+        if cfg.time_base == "auto" and session.data.output_quantity == "displacement":
+            # band-limited or bilinear line map: the one that fits (ident.core.time_base)
+            from fnsi_lab.ident.core.time_base import choose_time_base
+            session.data, dec, model, choice = choose_time_base(
+                session.data, int(order), max_order=max_order, block_rows=block_rows,
+                weighted=session.weighted, d_zero=session.d_zero)
+            session.evidence["time_base_choice"] = choice
+        else:
+            dec = subspace_decomposition(session.data, max_order=max_order,
+                                         block_rows=block_rows, weighted=session.weighted)
+            model = model_at_order(dec, session.data, int(order), d_zero=session.d_zero)
+        session.timings_s["decomposition"] = time.perf_counter() - t1
+        session.timings_s["model"] = time.perf_counter() - t1 - session.timings_s["decomposition"]
+        return Fit(model, "order", decomposition=dec)
+    else:
+        from fnsi_lab.ident.robust.auto import identify_auto
+
+        options = replace(cfg.auto, d_zero=session.d_zero, weighted=session.weighted,
+                          block_rows=block_rows or cfg.auto.block_rows)
+        basis = cfg.nonlinearities
+
+        def coefficients(model: StateSpaceModel) -> list[dict] | None:
+            return coefficient_summaries(session_coefficient_spectra(session, model),
+                                         session) or None
+
+        spread = (spread_function(session.data, basis, driving_point=dp)
+                  if basis and dp is not None else None)
+        t1 = time.perf_counter()
+        res = identify_auto(session.data, options, orders=sweep, reduce_at=reduce_at,
+                            progress=progress, coefficients=coefficients if basis else None,
+                            spread=spread)
+        session.timings_s["auto"] = time.perf_counter() - t1
+        session.warnings.extend(res.confidence.get("warnings", []))  # e.g. order at sweep end
+        return Fit(res.final_model, "auto", auto=res)
+
+
+def answer_modes(fit: Fit, output_error: OutputErrorFit | None = None) -> list[Mode]:
+    """Physical modes of an answer, sorted by frequency: every mode of ``fit.model``, or for
+    the robust pipeline those of its physical poles (the MDI table's; after an output-error
+    refinement the same modes refined, or dropped)."""
+    m = fit.model.poles.modes()
+    keep = np.ones(m["frequency_hz"].size, bool)
+    if fit.auto is not None:
+        physical = [r["frequency_hz"] for r in fit.auto.mdi_table() if r["physical"]]
+        if output_error is not None:   # the same modes, refined (or dropped)
+            physical = [g for g in (output_error.refined_frequency(f)
+                                    for f in physical) if g is not None]
+        keep = np.array([any(abs(f - g) <= 1e-6 * max(g, 1e-12) for g in physical)
+                         for f in m["frequency_hz"]], bool)
+    return [Mode(frequency_hz=float(f), damping_ratio=float(z), stable=bool(s),
+                 shape=np.asarray(m["mode_shapes"][:, k]))
+            for k, (f, z, s, kp) in enumerate(zip(m["frequency_hz"], m["damping_ratio"],
+                                                   m["stable"], keep)) if kp]
