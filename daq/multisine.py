@@ -11,6 +11,8 @@ from typing import Any, Literal
 
 import numpy as np
 
+from fnsi_lab.errors import ConfigError
+
 
 @dataclass(frozen=True)
 class Multisine:
@@ -127,7 +129,7 @@ def random_odd_lines(band_lines: np.ndarray, detection_block: int = 4,
     """
     block = int(detection_block)
     if block < 2:
-        raise ValueError(f"detection_block must be >= 2 odd lines, got {detection_block}")
+        raise ConfigError(f"detection_block must be >= 2 odd lines, got {detection_block}")
     odd = np.asarray(band_lines, int)
     odd = odd[odd % 2 == 1]
     n_blocks = odd.size // block
@@ -204,20 +206,20 @@ def multisine(samples_per_period: int, sample_rate_hz: float, band_hz: tuple[flo
     """
     n = int(samples_per_period)
     if n < 4 or n_periods < 1 or n_realizations < 1:
-        raise ValueError("samples_per_period >= 4, n_periods >= 1 and n_realizations >= 1 are required")
+        raise ConfigError("samples_per_period >= 4, n_periods >= 1 and n_realizations >= 1 are required")
     if not rms > 0:
-        raise ValueError(f"rms must be > 0, got {rms}")
+        raise ConfigError(f"rms must be > 0, got {rms}")
     if phases not in ("random", "schroeder"):
-        raise ValueError(f"phases must be 'random' or 'schroeder', got {phases!r}")
+        raise ConfigError(f"phases must be 'random' or 'schroeder', got {phases!r}")
     if grid not in ("full", "odd", "random-odd"):
-        raise ValueError(f"grid must be 'full', 'odd' or 'random-odd', got {grid!r}")
+        raise ConfigError(f"grid must be 'full', 'odd' or 'random-odd', got {grid!r}")
     lines = excited_lines(n, sample_rate_hz, band_hz)
     if grid == "odd":
         lines = lines[lines % 2 == 1]
     elif grid == "random-odd":
         lines = random_odd_lines(lines, detection_block, seed)
     if lines.size == 0:
-        raise ValueError(f"no DFT line of an {n}-sample period at {sample_rate_hz} Hz lies in {band_hz} Hz")
+        raise ConfigError(f"no DFT line of an {n}-sample period at {sample_rate_hz} Hz lies in {band_hz} Hz")
     rng = np.random.default_rng(seed)
     n_lines = lines.size
     if phases == "random":

@@ -40,6 +40,7 @@ import numpy as np
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 
 from fnsi_lab.daq.recording import topics
+from fnsi_lab.errors import ConfigError
 
 _F = descriptor_pb2.FieldDescriptorProto
 
@@ -149,7 +150,7 @@ def encode_block(data: np.ndarray, *, first_sample: int, realization: int,
     """
     arr = np.ascontiguousarray(data, dtype="<f4")
     if arr.ndim != 2:
-        raise ValueError(f"sample block must be 2-D (n_samples, n_channels), got shape {arr.shape}")
+        raise ConfigError(f"sample block must be 2-D (n_samples, n_channels), got shape {arr.shape}")
     n_samples, n_channels = arr.shape
     parts: list[bytes | memoryview] = []
     if arr.size:

@@ -28,6 +28,7 @@ from fnsi_lab.daq.channels import ChannelInfo
 from fnsi_lab.daq.recording import schema, topics
 from fnsi_lab.daq.recording.errors import (RecorderClosedError, RecordingError,
                                            RecordingWriteError)
+from fnsi_lab.errors import ConfigError
 from fnsi_lab.outputs import dumps as _dumps
 
 _COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
@@ -123,18 +124,18 @@ class Recorder:
                  start_utc_ns: int | None = None, max_chunk_signal_s: float = 1.0) -> None:
         channels = tuple(channels)
         if not channels:
-            raise ValueError("a recording needs at least one channel")
+            raise ConfigError("a recording needs at least one channel")
         names = [c.name for c in channels]
         if len(set(names)) != len(names):
-            raise ValueError(f"duplicate channel names in {names}")
+            raise ConfigError(f"duplicate channel names in {names}")
         if not sample_rate_hz > 0:
-            raise ValueError(f"sample_rate_hz must be > 0, got {sample_rate_hz}")
+            raise ConfigError(f"sample_rate_hz must be > 0, got {sample_rate_hz}")
         if compression not in _COMPRESSION:
-            raise ValueError(f"compression must be one of {sorted(_COMPRESSION)}, got {compression!r}")
+            raise ConfigError(f"compression must be one of {sorted(_COMPRESSION)}, got {compression!r}")
         if not flush_interval_s > 0:
-            raise ValueError(f"flush_interval_s must be > 0, got {flush_interval_s}")
+            raise ConfigError(f"flush_interval_s must be > 0, got {flush_interval_s}")
         if not max_chunk_signal_s > 0:
-            raise ValueError(f"max_chunk_signal_s must be > 0, got {max_chunk_signal_s}")
+            raise ConfigError(f"max_chunk_signal_s must be > 0, got {max_chunk_signal_s}")
         self.path = Path(path)
         self.channels = channels
         self.sample_rate_hz = float(sample_rate_hz)
@@ -197,7 +198,7 @@ class Recorder:
         try:
             text = dumps(value)
         except (TypeError, ValueError) as exc:
-            raise ValueError(f"metadata {key!r} is not JSON-able: {exc}") from None
+            raise ConfigError(f"metadata {key!r} is not JSON-able: {exc}") from None
         name = topics.metadata_record_name(key)
         self._writer.add_metadata(name, {topics.METADATA_JSON_KEY: text,
                                          topics.METADATA_CRC_KEY: topics.metadata_crc(name, text)})
@@ -276,12 +277,12 @@ class Recorder:
         """
         data = block.data
         if data.ndim != 2 or data.shape[1] != len(self._names):
-            raise ValueError(f"block of shape {data.shape} does not match the "
+            raise ConfigError(f"block of shape {data.shape} does not match the "
                              f"{len(self._names)} recorded channels")
         if block.channels is not self.channels and tuple(c.name for c in block.channels) != self._names:
-            raise ValueError("block channels differ from the recorder's channel table")
+            raise ConfigError("block channels differ from the recorder's channel table")
         if block.t0_ns < 0:
-            raise ValueError(f"block t0_ns must be >= 0 (MCAP log times are unsigned), got {block.t0_ns}")
+            raise ConfigError(f"block t0_ns must be >= 0 (MCAP log times are unsigned), got {block.t0_ns}")
         payload = schema.encode_block(data, first_sample=block.first_sample,
                                       realization=block.realization,
                                       sample_rate_hz=block.sample_rate_hz, t0_ns=block.t0_ns,
@@ -339,7 +340,7 @@ class Recorder:
             Message content (numpy scalars and arrays are converted).
         """
         if topic in (topics.TOPIC_SAMPLES, topics.TOPIC_EVENTS):
-            raise ValueError(f"topic {topic!r} is reserved; use write_block/write_event")
+            raise ConfigError(f"topic {topic!r} is reserved; use write_block/write_event")
         payload = dumps(obj).encode()
         self._begin()
         try:

@@ -52,7 +52,7 @@ from numba import njit
 
 from fnsi_lab.daq.sim.model import StructuralModel
 from fnsi_lab.daq.sim.nonlinear import BASIS_COULOMB, BASIS_NEG, BASIS_POLY, BASIS_POS, element_tables
-from fnsi_lab.errors import FnsiLabError
+from fnsi_lab.errors import ConfigError, FnsiLabError
 
 Quantity = Literal["displacement", "velocity", "acceleration"]
 
@@ -98,7 +98,7 @@ class SimulationResult:
         """The array of one quantity (raises if it was not computed)."""
         out = getattr(self, quantity)
         if out is None:
-            raise ValueError(f"{quantity} was not requested from simulate()")
+            raise ConfigError(f"{quantity} was not requested from simulate()")
         return out
 
 
@@ -634,16 +634,16 @@ def simulate(model: StructuralModel, force: np.ndarray, sample_rate_hz: float, *
     quantities = tuple(dict.fromkeys(quantities))  # each once (the outputs accumulate per name)
     bad = sorted(set(quantities) - {"displacement", "velocity", "acceleration"})
     if bad:
-        raise ValueError(f"unknown quantities {bad}: use displacement, velocity, acceleration")
+        raise ConfigError(f"unknown quantities {bad}: use displacement, velocity, acceleration")
     p = np.asarray(force, dtype=float)
     if p.ndim == 1:
         p = p[:, None]
     if p.shape[1] != model.n_inputs:
-        raise ValueError(f"force has {p.shape[1]} columns, model has {model.n_inputs} inputs")
+        raise ConfigError(f"force has {p.shape[1]} columns, model has {model.n_inputs} inputs")
     n_samples = p.shape[0]
     os_ = int(oversample)
     if os_ < 1:
-        raise ValueError("oversample must be >= 1")
+        raise ConfigError("oversample must be >= 1")
     h = 1.0 / (fs * os_)
     # periodic runs continue a little past the record so that the zero-phase anti-alias
     # filter sees the true continuation at the end of the last period
@@ -665,7 +665,7 @@ def simulate(model: StructuralModel, force: np.ndarray, sample_rate_hz: float, *
     if periodic is not None:
         n_per = int(periodic)
         if n_samples % n_per:
-            raise ValueError(f"{n_samples} samples is not a whole number of {n_per}-sample periods")
+            raise ConfigError(f"{n_samples} samples is not a whole number of {n_per}-sample periods")
         lines, qspec, w = _periodic_state(model, p[:n_per], fs, n_per * os_)
         lw = model.weights
         rows = np.nonzero(prep.need)[0]
@@ -821,7 +821,7 @@ def _outputs(model: StructuralModel, prep: _Prepared, fs: float, os_: int, n_sam
             spec = (vecs[n + dofs] * lam_all[None, :]) @ zt
             spec = spec + np.stack(bstate, axis=1)[n + dofs] @ u_spec
         else:
-            raise ValueError(f"unknown quantity {qn!r}")
+            raise ConfigError(f"unknown quantity {qn!r}")
         spec *= gain[None, :] * (n_out_total / t_len)
         y = np.fft.irfft(spec, n=n_out_total, axis=1)
         out[qn] = np.ascontiguousarray(y[:, :n_samples].T)

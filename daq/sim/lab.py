@@ -32,6 +32,7 @@ from fnsi_lab.daq.multisine import Multisine
 from fnsi_lab.daq.sim.integrate import simulate
 from fnsi_lab.daq.sim.model import StructuralModel
 from fnsi_lab.daq.sim.nonlinear import NonlinearElement
+from fnsi_lab.errors import ConfigError
 
 __all__ = ["LabRealism", "LabRecord", "duffing_model", "lab_experiment", "add_disturbances"]
 
@@ -158,7 +159,7 @@ def _noise(rng: np.random.Generator, shape: tuple[int, int], colour: str) -> np.
         E /= np.sqrt(k)[:, None]
         e = np.fft.irfft(E, n=shape[0], axis=0)
     elif colour != "white":
-        raise ValueError(f"noise_colour must be 'white' or 'pink', got {colour!r}")
+        raise ConfigError(f"noise_colour must be 'white' or 'pink', got {colour!r}")
     e -= e.mean(axis=0)
     return e / np.sqrt(np.mean(e ** 2, axis=0))
 

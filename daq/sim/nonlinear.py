@@ -163,7 +163,7 @@ class NonlinearElement:
         x = np.asarray(delta, dtype=float)
         if self.uses_velocity:
             if delta_dot is None:
-                raise ValueError(f"element {self.name} needs the relative velocity")
+                raise ConfigError(f"element {self.name} needs the relative velocity")
             x = np.asarray(delta_dot, dtype=float)
         cols = []
         for key in self.basis_names:

@@ -41,7 +41,7 @@ import scipy.linalg as sla
 
 from fnsi_lab.daq.sim.model import StructuralModel
 from fnsi_lab.daq.sim.nonlinear import NonlinearElement
-from fnsi_lab.errors import ConfigError
+from fnsi_lab.errors import ConfigError, WorkFailedError
 
 #: Table 1 of the seed paper: natural frequency (Hz), damping ratio (-), description.
 TABLE1: tuple[tuple[float, float, str], ...] = (
@@ -276,7 +276,7 @@ def _assign(m: np.ndarray, phi: np.ndarray, info: dict) -> tuple[np.ndarray, int
     try:
         chosen = np.array([fam[f][r] for f, r in ASSIGNMENT])
     except (KeyError, IndexError):  # pragma: no cover - skeleton design error
-        raise RuntimeError(f"SmallSat skeleton lacks a mode family: {sorted(fam)}") from None
+        raise WorkFailedError(f"SmallSat skeleton lacks a mode family: {sorted(fam)}") from None
     # partner of mode 8: the unassigned mode with the most IP rotation about Y
     ry = proj[names.index("IP-Ry")].copy()
     ry[chosen] = -1.0
@@ -376,10 +376,10 @@ def _linear_matrices(damping: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, 
         r = resid(x)
         it += 1
     if np.abs(r).max() > 1e-9:  # pragma: no cover - construction failure is a bug
-        raise RuntimeError(f"SmallSat eigenvalue placement did not converge ({np.abs(r).max():.2e})")
+        raise WorkFailedError(f"SmallSat eigenvalue placement did not converge ({np.abs(r).max():.2e})")
     kk, cc = build(x)
     if np.linalg.eigvalsh(cc).min() < -1e-9 * np.abs(cc).max():  # pragma: no cover
-        raise RuntimeError("SmallSat damping matrix is not positive semi-definite")
+        raise WorkFailedError("SmallSat damping matrix is not positive semi-definite")
     return m, cc, kk, {"newton_iterations": it, "added_modal_damping": x[n_t:].tolist()}
 
 

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from fnsi_lab.errors import DataFileError
+from fnsi_lab.errors import ConfigError, DataFileError
 
 #: FRF kinds of the ``frf`` section, in export order.
 FRF_KINDS = ("measured", "model", "underlying_linear")
@@ -42,7 +42,7 @@ def complex_array(value: Any, *, path: str, field_name: str) -> np.ndarray:
         if isinstance(value, dict) and "re" in value and "im" in value:
             re, im = _nested_float(value["re"]), _nested_float(value["im"])
             if re.shape != im.shape:
-                raise ValueError(f"re {re.shape} and im {im.shape} differ in shape")
+                raise ConfigError(f"re {re.shape} and im {im.shape} differ in shape")
             return re + 1j * im
         if isinstance(value, list):
             def conv(v: Any) -> Any:
