@@ -139,7 +139,8 @@ def test_curvature_is_measured_where_the_objective_is_smooth():
     """A model error that is rough at the scale of Newton's last stencil (a simulator that
     samples the contacts without band limit) gives an indefinite Hessian there; the
     uncertainty then comes from a wider stencil, not a refusal as 'flat'."""
-    from fnsi_lab.ident.refine.parameter_search import Unknown, _wider_curvature
+    from fnsi_lab.ident.refine.parameter_search import Unknown
+    from fnsi_lab.ident.refine.search_newton import wider_curvature
 
     def objectives(points):   # curvature 2 per axis, plus roughness of 1e-9 at 1e-6 scale
         return [float((p[0] - 1) ** 2 + (p[1] - 2) ** 2 + 1e-9 * np.sin(3e6 * p[0] * p[1]))
@@ -148,9 +149,9 @@ def test_curvature_is_measured_where_the_objective_is_smooth():
     unknowns = [Unknown(0, "stop", "g_neg", interval=(0.5, 2.0)),
                 Unknown(0, "stop", "g_pos", interval=(1.0, 4.0))]
     values = np.array([1.0, 2.0])
-    H = _wider_curvature(objectives, values, [0, 1], unknowns, -np.eye(2))
+    H = wider_curvature(objectives, values, [0, 1], unknowns, -np.eye(2))
     assert np.allclose(H, 2 * np.eye(2), atol=0.02)
-    assert np.array_equal(_wider_curvature(objectives, values, [0, 1], unknowns, np.eye(2)),
+    assert np.array_equal(wider_curvature(objectives, values, [0, 1], unknowns, np.eye(2)),
                           np.eye(2))      # a positive one is kept
 
 
@@ -260,14 +261,14 @@ def test_a_rough_minimum_is_refused():
     """The local profile must rise as the curvature says: a lucky low point of a rough model
     error (5-DOF chain seen by 2 outputs: 130-10^15 times off) is refused, a smooth minimum
     (0.6-2.3 measured) passes."""
-    from fnsi_lab.ident.refine.parameter_search import (ParameterEstimate, Unknown, _MAX_ROUGHNESS,
-                                                 _refuse_if_unclear, _roughness)
+    from fnsi_lab.ident.refine.parameter_search import ParameterEstimate, Unknown
+    from fnsi_lab.ident.refine.search_refusal import MAX_ROUGHNESS, refuse_if_unclear, roughness
 
     std, s2 = 1e-6, 1e-8
     offsets = np.array([-3e-6, 3e-6])                          # +-3 std: a rise of 9 chi-square
-    assert _roughness(offsets, 9 * s2 * np.ones(2), std, s2) == pytest.approx(1.0)
-    assert _roughness(offsets, np.array([9 * s2, 9e5 * s2]), std, s2) == pytest.approx(1e5)
-    assert _roughness(offsets, np.array([9 * s2, -s2]), std, s2) == np.inf   # lower nearby
+    assert roughness(offsets, 9 * s2 * np.ones(2), std, s2) == pytest.approx(1.0)
+    assert roughness(offsets, np.array([9 * s2, 9e5 * s2]), std, s2) == pytest.approx(1e5)
+    assert roughness(offsets, np.array([9 * s2, -s2]), std, s2) == np.inf   # lower nearby
     u = Unknown(0, "stop", "g_pos", interval=(1e-5, 1e-3), reach=1.1e-3)
     nl = Nonlinearity("stop", "trilinear", {"a": 1}, clearances=(1e-4, 1e-4))
 
@@ -275,10 +276,10 @@ def test_a_rough_minimum_is_refused():
         return ParameterEstimate(u, 1e-4, std, np.zeros(0), np.zeros(0), margin=1e3,
                                  roughness=roughness)
 
-    _refuse_if_unclear(estimate(2.3), nl, 0.1, 25.0)
-    _refuse_if_unclear(estimate(float("nan")), nl, 0.1, 25.0)      # no local point
+    refuse_if_unclear(estimate(2.3), nl, 0.1, 25.0)
+    refuse_if_unclear(estimate(float("nan")), nl, 0.1, 25.0)      # no local point
     with pytest.raises(NotIdentifiableError, match=r"g_pos: the model error around 0.0001 is rough"):
-        _refuse_if_unclear(estimate(10 * _MAX_ROUGHNESS), nl, 0.1, 25.0)
+        refuse_if_unclear(estimate(10 * MAX_ROUGHNESS), nl, 0.1, 25.0)
 
 
 def test_one_period_per_realisation_says_the_gaps_are_uncorrected():

@@ -46,6 +46,7 @@ from fnsi_lab.ident.core.fnsi import StateSpaceModel
 from fnsi_lab.ident.core.periodic import FrequencyData
 from fnsi_lab.ident.errors import IdentError
 from fnsi_lab.ident.refine.mode_evidence import omitted_mode_evidence
+from fnsi_lab.ident.refine.motion_noise import MotionNoise
 from fnsi_lab.ident.refine.output_error_fit import (MAX_POLE_SHIFT, BelowBandDisagrees,
                                                    fit_output_error)
 from fnsi_lab.ident.refine.output_error_problem import smoothed_noise
@@ -127,8 +128,8 @@ def refine_output_error(data: FrequencyData, basis: Sequence[Nonlinearity],
         is still above this after :data:`ident.refine.output_error_fit.GIVE_UP_AFTER` steps
         and the last step did not halve it: a model that cannot explain the data (a wrong
         static position of integrated outputs: 1e7 noise variances) is not worth 30 steps,
-        while a poor start still falling fast is (velocities whose searched gaps were +11 / +22 % off: 26
-        noise variances after 3 steps, 1.00 after 6).
+        while a poor start still falling fast is (velocities whose searched gaps were
+        +11 / +22 % off: 26 noise variances after 3 steps, 1.00 after 6).
 
     Returns
     -------
@@ -188,7 +189,6 @@ def refinement_case(data: FrequencyData, basis: Sequence[Nonlinearity],
         FNSI's weighted squared residual per line and output, and that residual itself.
     """
     from fnsi_lab.ident.core.fnsi import steady_state_output, transfer_discrete
-    from fnsi_lab.ident.refine.parameter_search import MotionNoise
 
     out: dict[str, Any] = {"run": False, "reason": "", "motion_noise_share": None,
                            "fnsi_misfit": None}

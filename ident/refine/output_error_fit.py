@@ -98,8 +98,8 @@ def fit_output_error(data: FrequencyData, basis: Sequence[Nonlinearity],
                      max_iterations, tolerance, watch, watch_tolerance, give_up_above, t0,
                      predict_below=None) -> OutputErrorFit:
     """:func:`ident.refine.output_error.refine_output_error` with the lines under the band
-    predicted or not (displacements: raises :class:`BelowBandDisagrees` when the start's prediction there
-    is off by more than ``_BELOW_BAND_START_MAX``)."""
+    predicted or not (displacements: raises :class:`BelowBandDisagrees` when the start's
+    prediction there is off by more than ``_BELOW_BAND_START_MAX``)."""
 
     modal = ModalModel.from_matrices(model.a_d, model.b_d, model.c_d, model.d_d)
     origin = (modal.poles.copy(), modal.real_poles.copy())   # each current mode's start pole
