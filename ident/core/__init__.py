@@ -1,9 +1,13 @@
 """The core floor: periodic records to a linear-in-the-parameters FNSI model.
 
 Imports nothing from the floors above (``robust``, ``refine``) nor from the entry point; only
-numpy, scipy and :mod:`fnsi_lab.ident.errors`. ``periodic`` (records -> ``FrequencyData``:
-averaging, noise covariance, steady periods with ``steady``; excited lines with
-``excitation``, mains and noise lines with ``noise``), ``basis`` and ``spline`` (the
+numpy, scipy and :mod:`fnsi_lab.ident.errors`. ``periodic`` (records -> ``FrequencyData``,
+``prepare_frequency_data`` running the steps, each in its module: ``frequency_data`` the
+containers ``FrequencyData``, ``BasisMotion`` and ``data_report``; ``averaging`` periods,
+steady state, the averaged output's noise, steady periods chosen by ``steady``;
+``processed_lines`` band, excited lines with ``excitation``, mains lines with ``noise``, ``z``;
+``motion`` integration of velocities/accelerations, DC offsets, the motion the basis reads;
+``extended_input`` the basis evaluated on it, ``with_basis``), ``basis`` and ``spline`` (the
 nonlinear basis functions, the extended input), the FNSI decomposition split by job:
 ``subspace`` (one QR + one SVD, ``A`` and ``C``; ``folding`` folds stacked realisations
 per line for it), ``bd`` and ``fast_bd`` (``B``, ``D`` by

@@ -20,7 +20,7 @@ import numpy as np
 from fnsi_lab.ident.core.basis import Nonlinearity, coefficient_names
 from fnsi_lab.ident.errors import ChannelError, IdentError, NotIdentifiableError
 from fnsi_lab.ident.core.fnsi import StateSpaceModel, transfer_discrete
-from fnsi_lab.ident.core.periodic import FrequencyData
+from fnsi_lab.ident.core.frequency_data import FrequencyData
 
 __all__ = ["CoefficientSpectra", "CoefficientSummary", "nonlinear_coefficients",
            "summarize_coefficients", "coefficient_spread", "spread_function",

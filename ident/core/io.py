@@ -16,7 +16,7 @@ MATLAB ``.mat``); this module only validates arrays. The array format
   ``realization_starts``, ``transient_samples``  optional: ``u``, ``y`` are one long record
                       whose realisation ``r`` starts at sample ``realization_starts[r]``;
                       ``transient_samples`` are dropped after each start, then whole periods
-                      of ``N`` samples (:func:`ident.core.periodic.cut_realizations`).
+                      of ``N`` samples (:func:`ident.core.averaging.cut_realizations`).
 """
 
 from __future__ import annotations
@@ -29,8 +29,8 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from fnsi_lab.ident.errors import ChannelError, IdentDataError, IdentError
-from fnsi_lab.ident.core.periodic import (OUTPUT_QUANTITIES, OutputQuantity, as_periodic,
-                                     cut_realizations)
+from fnsi_lab.ident.core.averaging import as_periodic, cut_realizations
+from fnsi_lab.ident.core.frequency_data import OUTPUT_QUANTITIES, OutputQuantity
 
 
 @dataclass(frozen=True, eq=False)

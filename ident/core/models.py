@@ -7,7 +7,7 @@ from __future__ import annotations
 from fnsi_lab.ident.core.bd import estimate_bd, estimate_bd_given_modes, project_outputs
 from fnsi_lab.ident.errors import IdentError
 from fnsi_lab.ident.core.fast_bd import fast_estimate_bd
-from fnsi_lab.ident.core.periodic import FrequencyData
+from fnsi_lab.ident.core.frequency_data import FrequencyData
 from fnsi_lab.ident.core.state_space import StateSpaceModel, eigen_decomposition, make_model
 from fnsi_lab.ident.core.subspace import (SubspaceDecomposition, state_matrices,
                                      state_matrices_block)

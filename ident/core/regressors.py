@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fnsi_lab.ident.core.periodic import FrequencyData
+from fnsi_lab.ident.core.frequency_data import FrequencyData
 
 __all__ = ["RegressorConditioning", "regressor_conditioning"]
 

@@ -70,7 +70,7 @@ def resolve_knots(basis: Sequence[Nonlinearity], motion: Any) -> tuple[Nonlinear
     Parameters
     ----------
     basis : sequence of Nonlinearity
-    motion : ident.core.periodic.BasisMotion
+    motion : ident.core.frequency_data.BasisMotion
         The averaged motion (``displacement``/``velocity`` ``(R, N_fine, c)``, ``channels``).
 
     Returns

@@ -10,7 +10,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from fnsi_lab.ident.errors import IdentError
-from fnsi_lab.ident.core.periodic import FrequencyData
+from fnsi_lab.ident.core.frequency_data import FrequencyData
 
 #: Readings of the discrete-time model (see :func:`ident.core.periodic.prepare_frequency_data`).
 TIME_BASES: tuple[str, ...] = ("band-limited", "zoh", "bilinear")

@@ -11,7 +11,7 @@ floor and the band-limited lines did better (40 dB: -0.08 % against -0.14 % on t
 stop; docs/ident.md). :func:`choose_time_base` fits both at the requested order and keeps
 bilinear only when its model error on the excited lines is clearly lower.
 
-Pure functions over :class:`~fnsi_lab.ident.core.periodic.FrequencyData`.
+Pure functions over :class:`~fnsi_lab.ident.core.frequency_data.FrequencyData`.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from fnsi_lab.ident.core.periodic import FrequencyData, TimeBase
+from fnsi_lab.ident.core.frequency_data import FrequencyData, TimeBase
 
 __all__ = ["with_time_base", "choose_time_base", "BILINEAR_MARGIN"]
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from fnsi_lab.ident.core.periodic import FrequencyData
+from fnsi_lab.ident.core.frequency_data import FrequencyData
 
 #: The full noise covariance (cross-channel terms) is inverted only when the periods give at
 #: least this many degrees of freedom per output (an inverse Wishart estimate is unbiased
