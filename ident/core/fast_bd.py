@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg as sla
 
+from fnsi_lab.ident.core.folding import qr_r_factor
 from fnsi_lab.ident.errors import IdentError
 
 __all__ = ["fast_estimate_bd", "model_output", "model_error",
@@ -211,7 +212,7 @@ def line_fold(data):
         me, p = data.E.shape[1], data.Y.shape[1]
         order = np.argsort(inv, kind="stable")
         A = np.hstack([data.E, data.Y])[order].conj().reshape(first.size, R, me + p)
-        Rk = np.linalg.qr(A, mode="r")                       # (F_u, min(R, q), q)
+        Rk = qr_r_factor(A)                                  # (F_u, min(R, q), q)
         r = min(R, me)
         X = Rk[:, :r].conj()                                  # (F_u, r, q): pseudo-realisations
         const = np.sum(np.abs(Rk[:, r:, me:]) ** 2, axis=(1, 2))
