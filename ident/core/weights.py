@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from fnsi_lab.ident.core.averaging import smooth_lines
 from fnsi_lab.ident.core.frequency_data import FrequencyData
 
 #: The full noise covariance (cross-channel terms) is inverted only when the periods give at
@@ -51,15 +52,15 @@ def inverse_covariance(data: FrequencyData, weighted: bool) -> np.ndarray | None
             # per-channel variances, smoothed over neighbouring lines: from P periods each
             # line's estimate has only P - 1 degrees of freedom and its inverse would weight
             # the lines at random (the noise spectrum itself is smooth)
-            q = 1.0 / (smooth_lines(var, data.lines, _NOISE_SMOOTHING_LINES) + floor)
+            q = 1.0 / (smooth_lines_per_block(var, data.lines, _NOISE_SMOOTHING_LINES) + floor)
         else:
             q = np.linalg.inv(cov + floor * np.eye(p))
     cache["inv_cov"] = q
     return q
 
 
-def smooth_lines(values: np.ndarray, lines: np.ndarray, half_width: int) -> np.ndarray:
-    """Moving average over +-``half_width`` neighbouring lines, per realization block.
+def smooth_lines_per_block(values: np.ndarray, lines: np.ndarray, half_width: int) -> np.ndarray:
+    """:func:`ident.core.averaging.smooth_lines` within each block of stacked realizations.
 
     ``values`` has shape (F, ...); blocks of stacked realizations (``lines`` restarting) are
     smoothed separately; the window shrinks at the block edges.
@@ -68,15 +69,7 @@ def smooth_lines(values: np.ndarray, lines: np.ndarray, half_width: int) -> np.n
         return values
     starts = np.flatnonzero(np.r_[True, np.diff(lines) <= 0])
     ends = np.r_[starts[1:], lines.size]
-    out = np.empty_like(values)
-    for a, b in zip(starts, ends):
-        v = values[a:b]
-        c = np.cumsum(np.concatenate([np.zeros((1,) + v.shape[1:]), v]), axis=0)
-        idx = np.arange(b - a)
-        lo = np.maximum(idx - half_width, 0)
-        hi = np.minimum(idx + half_width + 1, b - a)
-        out[a:b] = (c[hi] - c[lo]) / (hi - lo).reshape((-1,) + (1,) * (v.ndim - 1))
-    return out
+    return np.concatenate([smooth_lines(values[a:b], half_width) for a, b in zip(starts, ends)])
 
 
 def cov_for_svd(data: FrequencyData, weighted: bool) -> np.ndarray | None:
