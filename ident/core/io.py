@@ -179,20 +179,18 @@ def select_channels(inp: IdentInput, *, outputs: Sequence[str] | None = None,
     ChannelError
         A name is not in the file (the message lists the available ones).
     """
-    u, y = inp.u, inp.y
-    ins, outs = inp.input_channels, inp.output_channels
-    if outputs:
-        missing = [o for o in outputs if o not in outs]
-        if missing:
-            raise ChannelError(f"{inp.path}: output channel(s) {missing} not in the file "
-                               f"(outputs: {list(outs)})")
-        y = y[..., [outs.index(o) for o in outputs]]
-        outs = tuple(outputs)
-    if inputs:
-        missing = [i for i in inputs if i not in ins]
-        if missing:
-            raise ChannelError(f"{inp.path}: input channel(s) {missing} not in the file "
-                               f"(inputs: {list(ins)})")
-        u = u[..., [ins.index(i) for i in inputs]]
-        ins = tuple(inputs)
+    y, outs = _pick(inp.y, inp.output_channels, outputs, "output", inp.path)
+    u, ins = _pick(inp.u, inp.input_channels, inputs, "input", inp.path)
     return replace(inp, u=u, y=y, input_channels=ins, output_channels=outs)
+
+
+def _pick(x: np.ndarray, names: Sequence[str], wanted: Sequence[str] | None, role: str,
+          path: Any) -> tuple[np.ndarray, tuple[str, ...]]:
+    """The ``wanted`` channels of ``x`` (last axis), in that order; all of them without."""
+    if not wanted:
+        return x, tuple(names)
+    missing = [w for w in wanted if w not in names]
+    if missing:
+        raise ChannelError(f"{path}: {role} channel(s) {missing} not in the file "
+                           f"({role}s: {list(names)})")
+    return x[..., [list(names).index(w) for w in wanted]], tuple(wanted)
