@@ -308,3 +308,34 @@ def test_campaign_command_compares_levels_into_rrd_and_json(recordings, tmp_path
     assert "stop-corrupted.mcap" in text and "stop-rms10.mcap" in text
     # outputs are not overwritten without --force
     assert main(["campaign", str(out), "--rrd", str(rrd)]) == 2
+
+
+def test_the_table_names_the_unit_of_every_coefficient_and_level(recordings, tmp_path):
+    """The written Parquet, read with pyarrow: a unit column per coefficient (the JSON
+    result's ``coefficients[].unit``), the level's unit, the units in the field metadata."""
+    root, good, _ = recordings
+    out = tmp_path / "units.parquet"
+    assert main(["batch", str(good[0]), "--config", CONFIG, "--auto", "--orders", ORDERS,
+                 "--out", str(out), "--quiet", "--scheduler", "serial"]) == 0
+    table = pq.read_table(out)
+    row = table.to_pylist()[0]
+    result = json.loads((tmp_path / row["result"]).read_text())
+    # the recording is in N and m (SWEEP's lumped chain): a stop's stiffness is N/m
+    assert result["units"]["force"] == "N"
+    assert row["force_unit"] == "N" and row["force_rms"] == float(good[0].stem.split("rms")[1])
+    assert table.schema.field("force_rms").metadata == {b"unit": b"N"}
+    assert table.schema.field("wall_time_s").metadata == {b"unit": b"s"}
+    names = [c["name"] for c in result["coefficients"]]
+    assert names == ["stop:neg", "stop:pos"]
+    for c in result["coefficients"]:
+        assert c["unit"] == "N/m" and row[f"{c['name']}:unit"] == c["unit"]
+        assert str(table.schema.field(f"{c['name']}:unit").type) == "string"
+        for col in (c["name"], f"{c['name']}:std"):
+            assert table.schema.field(col).metadata == {b"unit": b"N/m"}
+        assert table.schema.field(f"{c['name']}:contact").metadata == {b"unit": b"1"}
+    # the documented columns keep their names and types; units are extra columns
+    for col in ("file", "status", "order", "n_modes", "force_rms", "stop:neg", "stop:neg:std"):
+        assert col in table.schema.names
+    rows, _ = read_table(out)   # the reader's coefficient list is unchanged by the new columns
+    from fnsi_lab.campaign.table import coefficient_names
+    assert coefficient_names(rows) == ["stop:neg", "stop:pos"]

@@ -412,6 +412,7 @@ def find_done(planned: Sequence[PlannedInput], spec: BatchSpec,
     for i, item in enumerate(planned):
         known = (previous_rows or {}).get(item.sha256)
         if (known is not None and known.get("status") in ("ok", "skipped")
+                and "force_unit" in known   # a table of before the unit columns: re-read
                 and known.get("result") and Path(known["result"]).resolve()
                 == item.result_path.resolve() and item.result_path.is_file()):
             done[i] = {**known, "file": str(item.path), "status": "skipped"}

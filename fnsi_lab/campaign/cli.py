@@ -142,8 +142,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Identify every INPUT (recordings or .npz/.mat files; folders and globs "
                     "accepted) as one Dask task through the same pipeline as 'fnsi-lab "
                     "ident', write each input's JSON result and one Parquet table (file, "
-                    "status, worker, order, n_modes, force_rms, each coefficient and its "
-                    "spread). Resumable; one failing input never stops the others.",
+                    "status, worker, order, n_modes, force_rms and its unit, each coefficient, "
+                    "its spread and unit). Resumable; one failing input never stops the others.",
         epilog=BATCH_EXAMPLES)
     p.add_argument("inputs", type=opt.INPUT, nargs="+", metavar="INPUT",
                    help="recording, array file, folder or quoted glob pattern")

@@ -13,11 +13,18 @@ Columns, in this order:
 ``wall_time_s``     float64  time the identification of this input took
 ``input_sha256``    string   content hash of the input (resume key)
 ``result``          string   its JSON result, relative to the table's folder
+``force_unit``      string   unit of ``force_rms`` (the force channel's, e.g. ``N``)
 ``<name>``          float64  each nonlinear coefficient: mean of its real part over the band
 ``<name>:std``      float64  its spread (standard deviation of the real part over the band)
 ``<name>:contact``  float64  fraction of time the matching stop was closed (simulated
                              recordings only)
+``<name>:unit``     string   unit of ``<name>`` and ``<name>:std`` (``coefficients[].unit``
+                             of the JSON result, e.g. ``N/mm``)
 ==================  =======  ==========================================================
+
+The numeric columns with a unit also carry it in their Arrow field metadata (``unit``:
+``s`` for ``wall_time_s``, the force unit for ``force_rms``, the coefficient's unit for
+``<name>`` and ``<name>:std``, ``1`` for ``<name>:contact``) when every row agrees.
 
 The table's schema metadata ``fnsi_lab.campaign`` holds the campaign settings (config,
 its hash, the order choice): ``fnsi-lab batch`` only rewrites a Parquet file that carries
@@ -52,8 +59,11 @@ METADATA_KEY = b"fnsi_lab.campaign"
 FIXED_COLUMNS: dict[str, str] = {
     "file": "string", "status": "string", "error": "string", "worker": "string",
     "order": "int64", "n_modes": "int64", "force_rms": "float64", "wall_time_s": "float64",
-    "input_sha256": "string", "result": "string",
+    "input_sha256": "string", "result": "string", "force_unit": "string",
 }
+
+#: Suffixes of the per-coefficient columns (``<name><suffix>``); ``<name>`` alone is the mean.
+COEFFICIENT_SUFFIXES = (":std", ":contact", ":unit")
 
 STATUSES = ("ok", "error", "skipped")
 
@@ -77,12 +87,14 @@ def result_row(result: Mapping[str, Any], item: "PlannedInput", *, status: str) 
     status : {'ok', 'skipped'}
     """
     meta = result.get("campaign") or {}
+    units = result.get("units") or {}
     row: dict[str, Any] = {
         "file": str(item.path), "status": status, "error": None,
         "worker": meta.get("worker"), "order": result.get("order"),
         "n_modes": len(physical_modes(result)), "force_rms": meta.get("force_rms"),
         "wall_time_s": meta.get("wall_time_s"), "input_sha256": item.sha256,
         "result": str(item.result_path),
+        "force_unit": units.get("force") if meta.get("force_rms") is not None else None,
     }
     contact = meta.get("contact_fraction") or {}
     for c in result.get("coefficients") or []:
@@ -91,6 +103,9 @@ def result_row(result: Mapping[str, Any], item: "PlannedInput", *, status: str) 
         row[f"{name}:std"] = c.get("std_real")
         if name in contact:
             row[f"{name}:contact"] = contact[name]
+        unit = c.get("unit") or (units.get("coefficients") or {}).get(name)
+        if unit:
+            row[f"{name}:unit"] = str(unit)
     return row
 
 
@@ -105,7 +120,7 @@ def coefficient_names(rows: Sequence[Mapping[str, Any]]) -> list[str]:
     names: dict[str, None] = {}
     for row in rows:
         for key in row:
-            if key not in FIXED_COLUMNS and not key.endswith((":std", ":contact")):
+            if key not in FIXED_COLUMNS and not key.endswith(COEFFICIENT_SUFFIXES):
                 names.setdefault(key, None)
     return list(names)
 
@@ -127,15 +142,32 @@ def write_table(rows: Sequence[Mapping[str, Any]], path: str | os.PathLike[str],
             values = [None if v is None else os.path.relpath(Path(v).resolve(), folder)
                       for v in values]
         columns[name] = pa.array(values, type=getattr(pa, kind)())
+    field_units = {"wall_time_s": "s", "force_rms": _common(rows, "force_unit")}
     for name in coefficient_names(rows):
+        unit = _common(rows, f"{name}:unit")
         for col in (name, f"{name}:std", f"{name}:contact"):
             values = [row.get(col) for row in rows]
             if col == name or any(v is not None for v in values):
                 columns[col] = pa.array([None if v is None else float(v) for v in values],
                                         type=pa.float64())
-    table = pa.table(columns).replace_schema_metadata({METADATA_KEY: dumps(settings).encode()})
+                field_units[col] = "1" if col.endswith(":contact") else unit
+        units = [row.get(f"{name}:unit") for row in rows]
+        if any(u is not None for u in units):
+            columns[f"{name}:unit"] = pa.array(units, type=pa.string())
+    schema = pa.schema([pa.field(col, array.type,
+                                 metadata={b"unit": field_units[col].encode()}
+                                 if field_units.get(col) else None)
+                        for col, array in columns.items()],
+                       metadata={METADATA_KEY: dumps(settings).encode()})
+    table = pa.table(columns, schema=schema)
     with atomic_output(path, "wb") as fh:
         pq.write_table(table, fh)
+
+
+def _common(rows: Sequence[Mapping[str, Any]], key: str) -> str | None:
+    """The one value of ``key`` over the rows that have it (None when none or several)."""
+    values = {str(row[key]) for row in rows if row.get(key) is not None}
+    return values.pop() if len(values) == 1 else None
 
 
 def is_campaign_table(path: str | os.PathLike[str]) -> bool:
