@@ -13,6 +13,8 @@ index; ``--same-phases`` keeps one seed). The folder also gets:
 
 - ``aircraft-joint.yaml``: ident config with the joint's relative motion
   ``channels: {wing: 1, payload: -1}`` (Coulomb friction ``tanh(delta'/v0)`` + cubic spring);
+- ``aircraft-jenkins.yaml``: the joint as a Jenkins element (hysteretic friction, a spring in
+  series with a slider) with ``slip: auto`` (docs/discovery.md, bolted joints);
 - ``aircraft-linear.yaml``: the same without nonlinear elements;
 - ``levels.json``: per level the file, commanded/measured force RMS, joint slip, friction
   energy, contact fraction and period-to-period differences (the truth's ``run``).
@@ -48,6 +50,22 @@ nonlinearities:
 max_order: 30
 """
 
+IDENT_JENKINS = """\
+# Aircraft-like GVT (daq.sim.aircraft): the bolted wing-to-payload joint as hysteretic
+# friction (a spring in series with a slider; the slip displacement from the data).
+band_hz: [2, 15]
+transient_periods: 1
+output_quantity: acceleration
+inputs:
+  - {name: F-shaker, driving_point: drive}
+nonlinearities:
+  - name: joint
+    kind: jenkins
+    channels: {wing: 1, payload: -1}
+    slip: auto                  # m (F_s / k), by the information criterion
+max_order: 30
+"""
+
 IDENT_LINEAR = """\
 # Aircraft-like GVT (daq.sim.aircraft): linear identification (no nonlinear element).
 band_hz: [2, 15]
@@ -80,7 +98,8 @@ def write_campaign(out: Path, levels: list[float], *, same_phases: bool = False,
         run = recording_info(str(path)).get("truth", {}).get("run", {})
         rows.append({"file": path.name, "level_n_rms": float(level), "phase_seed": exc.seed,
                      **run})
-    for name, text in (("aircraft-joint.yaml", IDENT_JOINT), ("aircraft-linear.yaml", IDENT_LINEAR)):
+    for name, text in (("aircraft-joint.yaml", IDENT_JOINT), ("aircraft-jenkins.yaml", IDENT_JENKINS),
+                       ("aircraft-linear.yaml", IDENT_LINEAR)):
         p = out / name
         if p.exists() and not force:
             print(f"{p} exists: kept (--force replaces it)", file=sys.stderr)

@@ -155,8 +155,9 @@ def _print_parameter_summary(res: dict, out=None) -> None:
     for nl in res["nonlinearities"]:
         for par, ob in (nl.get("objective") or {}).items():
             side = 0 if par in ("g_neg", "clearance") else 1
-            value = nl[par] if par in ("exponent", "offset") else nl["clearances"][side]
-            std = (nl.get(f"{par}_std") if par in ("exponent", "offset")
+            own = par in ("exponent", "offset", "slip")     # stored under its own name
+            value = nl[par] if own else nl["clearances"][side]
+            std = (nl.get(f"{par}_std") if own
                    else (nl.get("clearance_std") or [None, None])[side])
             unc = f" +- {std:.2g}" if std is not None and np.isfinite(std) else ""
             if (nl["name"], par) in refined:
@@ -164,12 +165,12 @@ def _print_parameter_summary(res: dict, out=None) -> None:
                         f"{refined[(nl['name'], par)]['start']:.6g})")
             err = ""
             errs = nl.get("clearance_error_percent")
-            if errs and par not in ("exponent", "offset"):
+            if errs and not own:
                 e = errs[0 if par in ("g_neg", "clearance") else 1]
                 err = f" (error {e:+.3f} % vs the recording's truth)" if e is not None else ""
             print(f"  {nl['name']} {par} = {value:.6g}{unc}{err}", file=out)
             what = ("noise-weighted model error, corrected for the motion noise,"
-                    if ob.get("noise_corrected") else "model error")
+                    if ob.get("noise_corrected") else ob.get("quantity") or "model error")
             print(f"    {what} vs {par}: "
                   f"{objective_sketch(ob['values'], ob['relative_model_error'])}"
                   f"  (min {np.nanmin(ob['relative_model_error']):.3g})", file=out)

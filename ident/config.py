@@ -117,7 +117,7 @@ class IdentConfig:
         return False
 
 
-_NUMERIC_KEYS = {"band_hz", "clearances", "clearance", "truth", "exponent", "velocity_scale",
+_NUMERIC_KEYS = {"band_hz", "clearances", "clearance", "truth", "exponent", "velocity_scale", "slip",
                  "knots", "velocity_knots",
                  "offset", "highpass_hz", "steady_state_tolerance", "bilinear_period_s",
                  "integration_min_snr"}
@@ -241,6 +241,18 @@ def _nonlinearity(sec: Section, index: int) -> Nonlinearity:
         kw["side"] = sec.string("side", "pos", choices=("pos", "neg"))
     elif kind == "coulomb":
         kw["velocity_scale"] = sec.number("velocity_scale", 1e-3, positive=True)
+    elif kind == "jenkins":
+        if not sec.has("slip"):
+            raise sec.error("slip", "a jenkins element needs its slip displacement (F_s / k)",
+                            fix="e.g. slip: auto (from the data) or slip: 5.0e-5 "
+                            "(same length unit as the outputs)")
+        value, space = _clearance_spec(sec, "slip", sec.raw("slip"), "slip")
+        if space is None and not value > 0:
+            raise sec.error("slip", f"expected a positive distance, got {value!r}",
+                            fix="e.g. slip: auto or slip: 5.0e-5")
+        kw["slip"] = value
+        if space is not None:
+            unknown.append(space)
     elif kind == "spline":
         for key, count in (("knots", "knot_count"), ("velocity_knots", "velocity_knot_count")):
             raw = sec.raw(key, None)

@@ -352,6 +352,8 @@ def _nonlinearity_json(nl: Nonlinearity, search: Any = None, truth: Mapping | No
                    argument=nl.argument, offset=nl.offset)
     elif nl.kind == "coulomb":
         out.update(velocity_scale=nl.velocity_scale, offset=nl.offset)
+    elif nl.kind == "jenkins":
+        out.update(slip=nl.slip, slip_std=std("slip"), offset=nl.offset)
     elif nl.kind == "spline":   # the placed knots: fnsi-lab validate rebuilds the columns
         out.update(knots=list(nl.knots), velocity_knots=list(nl.velocity_knots),
                    offset=nl.offset)
@@ -363,7 +365,8 @@ def _nonlinearity_json(nl: Nonlinearity, search: Any = None, truth: Mapping | No
                                 e.profile_objective, "std": e.std, "margin": e.margin,
                                 "interval": e.unknown.interval, "candidates": e.unknown.candidates,
                                 "motion_noise_std": e.motion_noise_std,
-                                "noise_corrected": e.noise_corrected, "roughness": e.roughness}
+                                "noise_corrected": e.noise_corrected, "roughness": e.roughness,
+                                "quantity": e.objective_name}
                             for p, e in est.items()}
     given = {t.get("name"): t for t in (truth or {}).get("nonlinearities") or []
              if isinstance(t, dict)}.get(nl.name)

@@ -26,6 +26,12 @@ Kinds
 ``coulomb``
     ``h = tanh(delta' / velocity_scale)`` (regularized Coulomb friction; ``c`` is the
     friction force in N).
+``jenkins``
+    Hysteretic friction (a bolted joint that sticks and slips): a spring in series with a
+    Coulomb slider, ``h = z`` the spring's elongation, the play operator of ``delta`` with
+    the slip displacement ``slip`` (m, ``F_s / k``; :mod:`ident.core.hysteresis`), in
+    periodic steady state. ``c`` is the spring's stiffness ``k`` (N/m); the slip force is
+    ``c * slip``. ``slip: auto`` leaves it to the data.
 ``spline``
     No assumed shape: a piecewise-linear restoring force in ``delta`` with slope changes at
     ``knots`` (one column per knot, ``max(delta - t, 0)`` for ``t >= 0``,
@@ -56,16 +62,19 @@ from typing import Literal, Mapping, Sequence
 
 import numpy as np
 
+from fnsi_lab.ident.core.hysteresis import periodic_play, periodic_play_slope
 from fnsi_lab.ident.errors import ChannelError, IdentError
 
-Kind = Literal["polynomial", "trilinear", "bilinear", "quadratic_damping", "coulomb", "spline"]
+Kind = Literal["polynomial", "trilinear", "bilinear", "quadratic_damping", "coulomb", "spline",
+               "jenkins"]
 KINDS: tuple[str, ...] = ("polynomial", "trilinear", "bilinear", "quadratic_damping", "coulomb",
-                          "spline")
+                          "spline", "jenkins")
 
 #: Parameters that can be estimated, per kind (``g_neg``/``g_pos``: the two clearances).
 ESTIMABLE: dict[str, tuple[str, ...]] = {"trilinear": ("g_neg", "g_pos", "offset"),
                                          "bilinear": ("clearance",),
-                                         "polynomial": ("exponent",)}
+                                         "polynomial": ("exponent",),
+                                         "jenkins": ("slip",)}
 
 
 @dataclass(frozen=True)
@@ -74,7 +83,7 @@ class ParameterSpace:
 
     Parameters
     ----------
-    parameter : {'g_neg', 'g_pos', 'clearance', 'offset', 'exponent'}
+    parameter : {'g_neg', 'g_pos', 'clearance', 'offset', 'exponent', 'slip'}
     interval : (float, float), optional
         Continuous search interval (clearances and offsets in the outputs' length unit; an
         offset's may be signed); None: from the recorded motion (clearances, offset) or the
@@ -110,7 +119,7 @@ class Nonlinearity:
     ----------
     name : str
         Coefficient name (``NAME:neg``/``NAME:pos`` for trilinear).
-    kind : {'polynomial', 'trilinear', 'bilinear', 'quadratic_damping', 'coulomb'}
+    kind : {'polynomial', 'trilinear', 'bilinear', 'quadratic_damping', 'coulomb', 'spline', 'jenkins'}
     channels : mapping str -> float
         Signed location vector ``L`` on measured output channels.
     exponent : float
@@ -127,6 +136,8 @@ class Nonlinearity:
         Bilinear side.
     velocity_scale : float
         Coulomb regularization velocity (m/s).
+    slip : float
+        Jenkins only: slip displacement ``F_s / k`` (m, the outputs' length unit), > 0.
     knots, velocity_knots : tuple of float
         Spline only: knot positions in ``delta`` (m) and in ``delta'`` (m/s).
     knot_count, velocity_knot_count : int
@@ -148,6 +159,7 @@ class Nonlinearity:
     clearance: float = 0.0
     side: Literal["pos", "neg"] = "pos"
     velocity_scale: float = 1e-3
+    slip: float = 0.0
     knots: tuple[float, ...] = ()
     velocity_knots: tuple[float, ...] = ()
     knot_count: int = 0
@@ -181,6 +193,10 @@ class Nonlinearity:
         if self.kind == "coulomb" and not self.velocity_scale > 0:
             raise IdentError(f"nonlinearity {self.name!r}: velocity_scale must be > 0")
         object.__setattr__(self, "unknown", tuple(self.unknown))
+        if (self.kind == "jenkins" and not self.slip > 0
+                and "slip" not in {sp.parameter for sp in self.unknown}):
+            raise IdentError(f"nonlinearity {self.name!r}: a jenkins element needs slip > 0 "
+                             "(the slip displacement F_s / k) or slip: auto")
         allowed = ESTIMABLE.get(self.kind, ())
         for sp in self.unknown:
             if sp.parameter not in allowed:
@@ -199,12 +215,12 @@ class Nonlinearity:
 
     def parameter(self, name: str) -> float:
         """Current value of an estimable parameter (``g_neg``, ``g_pos``, ``clearance``,
-        ``offset``, ``exponent``)."""
+        ``offset``, ``exponent``, ``slip``)."""
         if name == "g_neg":
             return self.clearances[0]
         if name == "g_pos":
             return self.clearances[1]
-        if name in ("clearance", "offset", "exponent"):
+        if name in ("clearance", "offset", "exponent", "slip"):
             return float(getattr(self, name))
         raise IdentError(f"nonlinearity {self.name!r}: no parameter {name!r}")
 
@@ -328,7 +344,44 @@ class Nonlinearity:
             return np.concatenate(cols, axis=1)
         if self.kind == "quadratic_damping":
             return (np.abs(v) * v)[:, None]
+        if self.kind == "jenkins":
+            return periodic_play(d, self.slip)[:, None]
         return np.tanh(v / self.velocity_scale)[:, None]  # coulomb
+
+    @property
+    def hysteretic(self) -> bool:
+        """True if ``h`` has memory: read on one period of a periodic motion, in time order."""
+        return self.kind == "jenkins"
+
+    def slope(self, delta: np.ndarray, delta_dot: np.ndarray | None = None) -> np.ndarray:
+        """Derivative of the basis column(s) with respect to the element's argument.
+
+        The argument is ``delta'`` for velocity-dependent elements, else ``delta``. Central
+        differences of :meth:`evaluate` with a step of ``1e-6`` times the argument's RMS (a
+        stop's slope is 0, 1 or 1/2 on a sample at its kink), except for a hysteretic
+        element, whose tangent along its cycle is exact (1 sticking, 0 slipping; shifting
+        the whole record would leave it unchanged).
+
+        Parameters
+        ----------
+        delta, delta_dot : ndarray, shape (n_samples,)
+            As in :meth:`evaluate`.
+
+        Returns
+        -------
+        ndarray, shape (n_samples, n_columns)
+        """
+        if self.kind == "jenkins":
+            return periodic_play_slope(np.asarray(delta, float) + self.offset, self.slip)[:, None]
+        if self.needs_velocity:
+            if delta_dot is None:
+                raise IdentError(f"nonlinearity {self.name!r} needs velocities")
+            v = np.asarray(delta_dot, float)
+            h = 1e-6 * max(float(np.sqrt(np.mean(v ** 2))), 1e-300)
+            return (self.evaluate(delta, v + h) - self.evaluate(delta, v - h)) / (2 * h)
+        d = np.asarray(delta, float)
+        h = 1e-6 * max(float(np.sqrt(np.mean(d ** 2))), 1e-300)
+        return (self.evaluate(d + h) - self.evaluate(d - h)) / (2 * h)
 
 
 Basis = tuple[Nonlinearity, ...]

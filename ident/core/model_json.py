@@ -124,6 +124,8 @@ def basis_from_json(items: Sequence[Mapping[str, Any]] | None,
                           argument=str(el.get("argument", "displacement")))
             elif kind == "coulomb":
                 kw["velocity_scale"] = float(el.get("velocity_scale", 1e-3))
+            elif kind == "jenkins":
+                kw["slip"] = float(el["slip"])
             elif kind == "spline":
                 kw.update(knots=tuple(float(k) for k in el.get("knots") or ()),
                           velocity_knots=tuple(float(k) for k in el.get("velocity_knots") or ()))

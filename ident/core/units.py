@@ -72,10 +72,10 @@ def coefficient_unit(nl: Nonlinearity, force: str, length: str, name: str | None
     Returns
     -------
     str
-        ``force / unit(h)``: ``N/mm`` (stops, linear springs), ``N/mm^3`` (cubic), ``N s/mm``
+        ``force / unit(h)``: ``N/mm`` (stops, linear springs, a Jenkins element's spring), ``N/mm^3`` (cubic), ``N s/mm``
         (linear viscous), ``N s^2/mm^2`` (quadratic damping), ``N`` (Coulomb).
     """
-    if nl.kind in ("trilinear", "bilinear"):
+    if nl.kind in ("trilinear", "bilinear", "jenkins"):
         return f"{force}/{length}"
     if nl.kind == "spline":   # slope changes: of force over displacement, or over velocity
         return f"{force} s/{length}" if name and ":v" in name else f"{force}/{length}"

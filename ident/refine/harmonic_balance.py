@@ -271,22 +271,15 @@ class HarmonicBalance:
 
     def _slope_spectra(self, delta: np.ndarray, basis) -> np.ndarray:
         """Spectra of ``dh_a / d(argument)`` up to ``2 k_max``, in FFT order on the
-        convolution grid: shape (R, Nc, s). Central differences (a stop's slope is 0, 1
-        or 1/2 on a sample at its kink)."""
+        convolution grid: shape (R, Nc, s), by :meth:`Nonlinearity.slope` (central
+        differences; a hysteretic element's tangent along its cycle)."""
         out = np.zeros((self.R, self.Nc, self.s), complex)
         top = 2 * self.k_max
         for r in range(self.R):
             q, qd = self._signals(delta[r], r, self.Nf)
             cols = []
             for e, nl in enumerate(basis):
-                if nl.needs_velocity:
-                    step = 1e-6 * max(float(np.sqrt(np.mean(qd[:, e] ** 2))), 1e-300)
-                    slope = (nl.evaluate(q[:, e], qd[:, e] + step)
-                             - nl.evaluate(q[:, e], qd[:, e] - step)) / (2 * step)
-                else:
-                    step = 1e-6 * max(float(np.sqrt(np.mean(q[:, e] ** 2))), 1e-300)
-                    slope = (nl.evaluate(q[:, e] + step) - nl.evaluate(q[:, e] - step)) / (2 * step)
-                cols.append(slope)
+                cols.append(nl.slope(q[:, e], qd[:, e] if nl.needs_velocity else None))
             full = np.fft.fft(np.concatenate(cols, axis=1), axis=0) / self.Nf
             out[r, :top + 1] = full[:top + 1]
             out[r, self.Nc - top:] = full[self.Nf - top:]

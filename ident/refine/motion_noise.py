@@ -97,6 +97,9 @@ class MotionNoise:
                 out.append(np.zeros((R, n_fine, len(nl.coefficient_names))))
                 continue
             arg = self.motion.displacement @ L + nl.offset                    # (R, N_fine)
+            if nl.hysteretic:
+                out.append(np.stack([nl.slope(x - nl.offset) for x in arg]))
+                continue
             step = 1e-6 * float(np.max(np.abs(arg))) or 1e-12
             out.append(np.stack([(nl.evaluate(x + step) - nl.evaluate(x - step)) / (2 * step)
                                  for x in arg]))

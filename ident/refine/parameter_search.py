@@ -76,6 +76,7 @@ from fnsi_lab.ident.refine.search_objective import SearchObjective
 from fnsi_lab.ident.refine.search_refusal import (StartRefused, refuse_if_unclear, roughness,
                                                   search_notes)
 from fnsi_lab.ident.refine.search_result import ParameterEstimate, ParameterSearchResult
+from fnsi_lab.ident.refine.slip_search import estimate_slips, only_slips_unknown
 from fnsi_lab.ident.refine.search_space import (AUTO_CLEARANCE_FRACTION, AUTO_EXPONENTS,
                                                 AUTO_SIGNED_EXPONENT_INTERVAL, Unknown,
                                                 format_values, has_unknown_parameters,
@@ -177,6 +178,8 @@ def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity]
     chain of order 6) once led the scan to a wrong valley that no scan point at a lower end
     revealed.
     """
+    if only_slips_unknown(basis):   # Jenkins slips: by the information criterion
+        return estimate_slips(data, basis, max_order=order, d_zero=d_zero, progress=progress)
     search = partial(_search, data, basis, order=order, d_zero=d_zero, block_rows=block_rows,
                      weighted=weighted, grid_points=grid_points,
                      max_relative_std=max_relative_std, min_margin=min_margin,

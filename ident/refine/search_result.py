@@ -31,7 +31,7 @@ class ParameterEstimate:
         (the other parameters at their values at that stage) and a local scan around the
         estimate (the other parameters at their estimates).
     profile_objective : ndarray, shape (n_points,)
-        Relative model error ``V`` at each.
+        Relative model error ``V`` at each (or what ``objective_name`` says).
     margin : float
         ``(V_other - V_best) / s^2`` in chi-square units (``s^2`` the residual variance per
         degree of freedom at the estimate): ``V_other`` is the runner-up candidate (discrete)
@@ -49,6 +49,9 @@ class ParameterEstimate:
         largest factor between the chi-square rise it shows and the rise
         ``(offset / std)^2`` the curvature predicts (1: a smooth quadratic minimum; NaN
         without local points).
+    objective_name : str
+        What ``profile_objective`` holds (``slip: auto``: the information criterion,
+        :mod:`ident.refine.slip_search`).
     """
 
     unknown: Unknown
@@ -60,6 +63,7 @@ class ParameterEstimate:
     motion_noise_std: float | None = None
     noise_corrected: bool = False
     roughness: float = float("nan")
+    objective_name: str = "relative model error"
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able record."""
@@ -69,7 +73,8 @@ class ParameterEstimate:
                 "candidates": None if u.candidates is None else list(u.candidates),
                 "reach": u.reach, "margin": self.margin, "motion_noise_std": self.motion_noise_std,
                 "noise_corrected": self.noise_corrected, "roughness": self.roughness,
-                "profile": {"values": self.profile_values, "objective": self.profile_objective}}
+                "profile": {"values": self.profile_values, "objective": self.profile_objective,
+                            "quantity": self.objective_name}}
 
 
 @dataclass

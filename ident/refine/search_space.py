@@ -16,7 +16,7 @@ from fnsi_lab.ident.errors import IdentError, NotIdentifiableError
 
 __all__ = ["Unknown", "search_spaces", "has_unknown_parameters", "resolve_basis",
            "initial_value", "with_value", "format_values", "AUTO_EXPONENTS",
-           "AUTO_SIGNED_EXPONENT_INTERVAL", "AUTO_CLEARANCE_FRACTION"]
+           "AUTO_SIGNED_EXPONENT_INTERVAL", "AUTO_CLEARANCE_FRACTION", "AUTO_SLIP_FRACTION"]
 
 #: ``exponent: auto`` of an unsigned polynomial: the whole exponents tried.
 AUTO_EXPONENTS: tuple[float, ...] = (2.0, 3.0, 4.0, 5.0, 6.0, 7.0)
@@ -26,6 +26,10 @@ AUTO_SIGNED_EXPONENT_INTERVAL: tuple[float, float] = (1.5, 7.0)
 #: ``clearances: auto``: fraction of the largest recorded excursion towards that side
 #: searched (a gap of 0 is a linear spring; a gap at the largest excursion never touches).
 AUTO_CLEARANCE_FRACTION: tuple[float, float] = (0.02, 0.98)
+#: ``slip: auto`` of a Jenkins element: fraction of the recorded relative motion's half
+#: peak-to-peak ``A`` searched (a slip of ``A`` or more never slips: a linear spring; at a
+#: small fraction the joint slips nearly all the time: a Coulomb law, ``F_s sign(delta')``).
+AUTO_SLIP_FRACTION: tuple[float, float] = (0.01, 0.95)
 
 
 def has_unknown_parameters(basis: Sequence[Nonlinearity]) -> bool:
@@ -43,9 +47,9 @@ class Unknown:
         Index of the element in the basis.
     name : str
         Element name.
-    parameter : {'g_neg', 'g_pos', 'clearance', 'offset', 'exponent'}
+    parameter : {'g_neg', 'g_pos', 'clearance', 'offset', 'exponent', 'slip'}
     interval : (float, float) or None
-        Continuous search interval (clearances and offsets in the outputs' length unit).
+        Continuous search interval (clearances, slips and offsets in the outputs' length unit).
     candidates : tuple of float or None
         Discrete values.
     reach : float or None
@@ -146,6 +150,9 @@ def search_spaces(data: FrequencyData, basis: Sequence[Nonlinearity]) -> list[Un
                 else:
                     out.append(Unknown(i, nl.name, "exponent", candidates=AUTO_EXPONENTS))
                 continue
+            if sp.parameter == "slip":
+                out.append(_slip_space(i, nl, sp.interval, _argument(nl, data)))
+                continue
             d = _argument(nl, data)
             side = {"g_neg": "neg", "g_pos": "pos"}.get(sp.parameter, nl.side)
             reach = float(np.max(d if side == "pos" else -d))
@@ -161,6 +168,27 @@ def search_spaces(data: FrequencyData, basis: Sequence[Nonlinearity]) -> list[Un
             out.append(Unknown(i, nl.name, sp.parameter,
                                interval=(float(lo), float(min(hi, reach))), reach=reach))
     return out
+
+
+def _slip_space(element: int, nl: Nonlinearity, interval: tuple[float, float] | None,
+                motion: np.ndarray) -> Unknown:
+    """The search space of a Jenkins element's slip displacement.
+
+    ``motion`` is the element's argument on the fine grid. With ``A`` half its largest
+    peak-to-peak over a period, a slip of ``A`` or more never slips (the column is the
+    motion less a constant: the underlying linear stiffness), so ``auto`` searches
+    ``AUTO_SLIP_FRACTION`` of ``A`` on a log scale.
+    """
+    half_span = 0.5 * float(np.max(motion) - np.min(motion))
+    lo, hi = (interval if interval is not None
+              else tuple(f * half_span for f in AUTO_SLIP_FRACTION))
+    if not half_span > lo or not hi > lo or not lo > 0:
+        raise NotIdentifiableError(
+            f"nonlinearity {nl.name!r}: the data cannot tell slip: the recorded relative "
+            f"motion's half peak-to-peak is {half_span:.4g}, not beyond the search interval "
+            f"[{lo:.4g}, {hi:.4g}] (the joint never slips there; excite harder, give the "
+            "slip or drop the element)")
+    return Unknown(element, nl.name, "slip", interval=(float(lo), float(min(hi, half_span))))
 
 
 def _offset_space(element: int, nl: Nonlinearity, interval: tuple[float, float] | None,

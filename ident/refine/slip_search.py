@@ -1,0 +1,172 @@
+"""``slip: auto``: a Jenkins element's slip displacement from the data, by the information
+criterion (docs/ident.md, "Unknown basis parameters"; docs/discovery.md, bolted joints).
+
+Why not the model error at a fixed order, as for clearances
+(:mod:`ident.refine.parameter_search`): the basis column of a Jenkins element is a function
+of the *measured* relative motion, and as the slip grows towards the motion's amplitude the
+column becomes that motion less a constant. A column that copies an output lets the model
+predict the output from itself, so the model error at a fixed order falls towards the top
+of the interval whatever the joint does (aircraft-like GVT at 55 N: smallest at 400 um,
+where the joint never slips; the truth is 53 um). The structure's order changes with the
+slip as well (a slipping joint softens and separates modes that a stuck one couples), so
+no one order suits every candidate. The information criterion (MDL over the orders, with
+the search's own fits) charges each candidate for the order it needs and compares across
+candidates (relative model errors): its smallest value over the orders has a clear
+minimum near the truth on the aircraft-like GVT (55 N: 37-52 um for 53 um; 84 N: 37 um for
+42 um) and rises steeply where the joint stops slipping.
+
+The scan is one decomposition per candidate (``GRID_POINTS`` log-spaced slips over the
+search interval, about 0.05 s each on the 3-channel GVT), then a parabola through the best
+point and its neighbours on the log scale. Several Jenkins elements are scanned one after
+the other, the others at their current values, twice.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Callable, Sequence
+
+import numpy as np
+
+from fnsi_lab.ident.core.basis import Nonlinearity
+from fnsi_lab.ident.core.periodic import FrequencyData
+from fnsi_lab.ident.errors import IdentError, NotIdentifiableError
+from fnsi_lab.ident.refine.search_fit import order_by_information_criterion, search_block_rows
+from fnsi_lab.ident.refine.search_result import ParameterEstimate, ParameterSearchResult
+from fnsi_lab.ident.refine.search_space import Unknown, resolve_basis, search_spaces
+
+__all__ = ["GRID_POINTS", "OBJECTIVE", "estimate_slips", "only_slips_unknown"]
+
+#: Candidate slips of the scan over the search interval (log-spaced; neighbours 1.3x apart
+#: over the default interval's factor 95).
+GRID_POINTS = 18
+#: What the profile holds (``parameter_search.estimates[].objective`` in the JSON).
+OBJECTIVE = "information criterion (mdl, smallest over the orders)"
+
+
+def only_slips_unknown(basis: Sequence[Nonlinearity]) -> bool:
+    """True if some element leaves its slip to the data and no other parameter is left."""
+    left = [sp.parameter for nl in basis for sp in nl.unknown]
+    return bool(left) and all(p == "slip" for p in left)
+
+
+def estimate_slips(data: FrequencyData, basis: Sequence[Nonlinearity], *, max_order: int,
+                   d_zero: bool = False, grid_points: int = GRID_POINTS,
+                   progress: Callable[[str], None] | None = None) -> ParameterSearchResult:
+    """Slip displacements of the Jenkins elements of ``basis`` left to the data.
+
+    Parameters
+    ----------
+    data : FrequencyData
+        Prepared with the motion of the basis channels (``motion_for=basis``).
+    basis : sequence of Nonlinearity
+        Elements; only ``slip`` parameters may be unknown.
+    max_order : int
+        Largest order of the information criterion's sweep (even orders 2..max_order).
+    d_zero : bool
+        ``D = 0`` in the fits.
+    grid_points : int
+        Candidates per scan.
+    progress : callable, optional
+        ``progress(note)`` after each scan.
+
+    Returns
+    -------
+    ParameterSearchResult
+        ``estimates[].profile_objective`` holds the criterion's value per candidate, ``std``
+        is NaN (the criterion is no likelihood; the profile shows how sharp the minimum is).
+
+    Raises
+    ------
+    NotIdentifiableError
+        The best slip is at an end of the interval: at the top the joint does not slip
+        measurably (a linear spring), at the bottom it slips all the time (a Coulomb law).
+    IdentError
+        Another parameter is left to the data too.
+    """
+    t0 = time.perf_counter()
+    basis = tuple(basis)
+    if not only_slips_unknown(basis):
+        raise IdentError("slip: auto cannot be searched together with other parameters left "
+                         "to the data (clearances, offsets, exponents): give those, or the slip")
+    unknowns = search_spaces(data, basis)
+    values = np.array([np.sqrt(u.bounds[0] * u.bounds[1]) for u in unknowns])
+    m_e = data.n_inputs + sum(len(nl.coefficient_names) for nl in basis)
+    rows = search_block_rows(data.n_outputs, int(max_order), data.n_lines, m_e)
+    memo: dict[tuple, tuple[int, float]] = {}
+
+    def criterion(vals: np.ndarray) -> tuple[int, float]:
+        key = tuple(np.round(np.log(vals), 12))
+        if key not in memo:
+            memo[key] = order_by_information_criterion(
+                data, resolve_basis(basis, unknowns, vals), int(max_order), block_rows=rows,
+                d_zero=d_zero, with_value=True)
+        return memo[key]
+
+    profiles: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    for _ in range(2 if len(unknowns) > 1 else 1):
+        for k, u in enumerate(unknowns):
+            grid = np.geomspace(*u.bounds, grid_points)
+            ic = np.array([criterion(_with(values, k, v))[1] for v in grid])
+            values[k], refined = _parabola_minimum(grid, ic, lambda v: criterion(_with(values, k, v))[1])
+            pts = np.concatenate([grid, [values[k]]]) if refined is not None else grid
+            obj = np.concatenate([ic, [refined]]) if refined is not None else ic
+            order_idx = np.argsort(pts)
+            profiles[k] = (pts[order_idx], obj[order_idx])
+            if progress:
+                progress(f"scan: {u.label}={values[k]:.4g}")
+    estimates = [_estimate(u, values[k], *profiles[k], grid_points) for k, u in enumerate(unknowns)]
+    order, value = criterion(values)
+    return ParameterSearchResult(resolve_basis(basis, unknowns, values), estimates, value,
+                                 order, len(memo), rows, {"total": time.perf_counter() - t0},
+                                 [], float("nan"), [])
+
+
+def _with(values: np.ndarray, k: int, v: float) -> np.ndarray:
+    out = values.copy()
+    out[k] = v
+    return out
+
+
+def _parabola_minimum(grid: np.ndarray, ic: np.ndarray,
+                      evaluate: Callable[[float], float]) -> tuple[float, float | None]:
+    """The best grid point, moved to the vertex of the parabola through it and its two
+    neighbours (log scale) when that point's criterion is lower. Returns (value, its
+    criterion or None if not evaluated)."""
+    finite = np.isfinite(ic)
+    if not finite.any():
+        return float(grid[len(grid) // 2]), None
+    b = int(np.nanargmin(np.where(finite, ic, np.inf)))
+    if b in (0, len(grid) - 1):
+        return float(grid[b]), None
+    x = np.log(grid[b - 1:b + 2])
+    y = ic[b - 1:b + 2]
+    denom = (x[0] - x[1]) * (x[0] - x[2]) * (x[1] - x[2])
+    a = (x[2] * (y[1] - y[0]) + x[1] * (y[0] - y[2]) + x[0] * (y[2] - y[1])) / denom
+    if not a > 0:
+        return float(grid[b]), None
+    bb = (x[2] ** 2 * (y[0] - y[1]) + x[1] ** 2 * (y[2] - y[0]) + x[0] ** 2 * (y[1] - y[2])) / denom
+    vertex = float(np.clip(-bb / (2 * a), x[0], x[2]))
+    value = float(np.exp(vertex))
+    at_vertex = evaluate(value)
+    return (value, at_vertex) if at_vertex < ic[b] else (float(grid[b]), at_vertex)
+
+
+def _estimate(u: Unknown, value: float, points: np.ndarray, objective: np.ndarray,
+              grid_points: int) -> ParameterEstimate:
+    """The estimate with its profile; refused at an end of the interval."""
+    lo, hi = u.bounds
+    step = (hi / lo) ** (1.0 / max(grid_points - 1, 1))
+    if value >= hi / np.sqrt(step):
+        raise NotIdentifiableError(
+            f"nonlinearity {u.name!r}: the data cannot tell slip: the information criterion is "
+            f"smallest at the top of the search interval [{lo:.4g}, {hi:.4g}], where the joint "
+            "barely slips (a linear spring: the underlying linear model holds it); excite "
+            "harder, or drop the element")
+    if value <= lo * np.sqrt(step):
+        raise NotIdentifiableError(
+            f"nonlinearity {u.name!r}: the data cannot tell slip: the information criterion is "
+            f"smallest at the bottom of the search interval [{lo:.4g}, {hi:.4g}] (the joint "
+            "slips nearly all the time: try kind: coulomb, or a search interval reaching lower)")
+    return ParameterEstimate(u, float(value), float("nan"), points, objective,
+                             objective_name=OBJECTIVE)

@@ -1,0 +1,158 @@
+"""``kind: jenkins``: hysteretic friction (a spring in series with a slider) as a basis
+element: the play operator's physics, the config, ``slip: auto`` on the aircraft-like GVT
+(whose joint is a Jenkins element with a settling preload and a clearance: not our basis
+exactly), and the time integration of ``fnsi-lab validate`` against the harmonic balance."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fnsi_lab.ident.config import parse_ident_config
+from fnsi_lab.ident.core.basis import Nonlinearity
+from fnsi_lab.ident.core.hysteresis import periodic_play, periodic_play_slope
+from fnsi_lab.ident.errors import IdentConfigError
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _cycle(n: int = 4000, amplitude: float = 2.0) -> np.ndarray:
+    return amplitude * np.sin(2 * np.pi * np.arange(n) / n)
+
+
+def test_energy_per_cycle_is_the_textbook_value():
+    """A sine of amplitude A through a Jenkins element of unit stiffness and slip s
+    dissipates 4 s (A - s) per cycle (the area of its parallelogram loop); the loop's
+    force never leaves [-s, s]; the trapezoid sum over 4000 points per cycle misses only
+    the corners the sampling cuts (below 1e-3 relative)."""
+    d = _cycle()
+    for slip in (0.1, 0.5, 1.5):
+        z = periodic_play(d, slip)
+        assert np.all(np.abs(z) <= slip + 1e-15)
+        zc, dc = np.r_[z, z[:1]], np.r_[d, d[:1]]
+        energy = float(np.sum(0.5 * (zc[1:] + zc[:-1]) * np.diff(dc)))   # trapezoid
+        assert energy == pytest.approx(4 * slip * (2.0 - slip), rel=1e-3)
+
+
+def test_a_joint_that_never_slips_is_a_linear_spring():
+    """Slip larger than the amplitude: z is the motion less a constant (no dissipation);
+    its tangent is 1 everywhere. Slipping: the tangent is 0 on the slipping parts (a sine
+    of amplitude 2, slip 0.5: sticking over the first 2 s = 0.5 of each half-swing of 4,
+    i.e. arccos(1 - 2 s / A) / pi = 1/3 of the time)."""
+    d = _cycle()
+    z = periodic_play(d, 5.0)
+    assert np.allclose(z - z.mean(), d - d.mean(), atol=1e-12)
+    assert np.all(periodic_play_slope(d, 5.0) == 1.0)
+    stuck = periodic_play_slope(d, 0.5).mean()
+    assert stuck == pytest.approx(np.arccos(1 - 2 * 0.5 / 2.0) / np.pi, abs=2e-3)
+
+
+def test_the_steady_cycle_does_not_depend_on_where_the_period_starts():
+    """Periodic steady state: rotating the period rotates the answer (two passes wipe out
+    the start)."""
+    rng = np.random.default_rng(1)
+    d = np.cumsum(rng.standard_normal(1000))
+    d -= np.linspace(0, d[-1] - d[0], d.size)     # periodic
+    z = periodic_play(d, 3.0)
+    assert np.allclose(np.roll(periodic_play(np.roll(d, 321), 3.0), -321), z, atol=1e-12)
+
+
+def test_config_and_element():
+    """``slip`` is required: a number > 0, ``auto`` or an interval; errors name the field."""
+    base = {"band_hz": [1, 10], "nonlinearities": [
+        {"name": "joint", "kind": "jenkins", "channels": {"a": 1, "b": -1}}]}
+    with pytest.raises(IdentConfigError, match="slip"):
+        parse_ident_config(base)
+    for bad in (0.0, -1e-5, "often"):
+        cfg = json.loads(json.dumps(base))
+        cfg["nonlinearities"][0]["slip"] = bad
+        with pytest.raises(IdentConfigError, match="slip"):
+            parse_ident_config(cfg)
+    cfg = json.loads(json.dumps(base))
+    cfg["nonlinearities"][0]["slip"] = "auto"
+    (nl,) = parse_ident_config(cfg).nonlinearities
+    assert [sp.parameter for sp in nl.unknown] == ["slip"]
+    nl = Nonlinearity("joint", "jenkins", {"a": 1, "b": -1}, slip=2e-5)
+    assert nl.hysteretic and nl.coefficient_names == ("joint",)
+
+
+@pytest.fixture(scope="module")
+def gvt(tmp_path_factory):
+    """The aircraft-like GVT at 55 N (joint slipping 18 % of the time) and 84 N, written by
+    bench/aircraft.py (the real acquisition entry point) with its configs."""
+    folder = tmp_path_factory.mktemp("gvt")
+    proc = subprocess.run([sys.executable, str(ROOT / "bench" / "aircraft.py"), "--out", "gvt",
+                           "--levels", "55", "84"], cwd=folder, capture_output=True, text=True,
+                          timeout=600, env=dict(os.environ, OPENBLAS_NUM_THREADS="1"))
+    assert proc.returncode == 0, proc.stderr
+    return folder / "gvt"
+
+
+def test_slip_auto_on_the_aircraft_joint(gvt):
+    """``slip: auto`` on the 55 N record: the information criterion's slip lies within a
+    factor 1.5 of the truth's slip displacement at the end of the record (52.6 N / 1e6 N/m;
+    the simulated preload settles with slip, so no single value is exact, and one grid step
+    of the scan is 1.3x). Then either the nested test finds the nonlinear model
+    significantly better, and its underlying linear modes near 9.3 and 12.4 Hz sit within
+    0.5 % of the modes of the structure whose joint carries no friction force (the Jenkins
+    element's underlying linear structure; the linear fit's are 2-4 % higher), or the answer
+    is the linear fit's, modes and all (bench/RESULTS.md: both happen, with the multisine's
+    phases; the robust pipeline's reduction sometimes leaves too low an order)."""
+    import fnsi_lab
+    from fnsi_lab.daq.recording.info import recording_info
+
+    path = gvt / "aircraft-rms55.mcap"
+    truth = recording_info(str(path))["truth"]
+    slip_true = truth["run"]["final_slip_force_n"] / truth["joint"]["k_stick_n_per_m"]
+    res = fnsi_lab.identify(str(path), config=str(gvt / "aircraft-jenkins.yaml"))
+    doc = res.to_json()
+    (el,) = doc["nonlinearities"]
+    assert el["kind"] == "jenkins" and el["estimated"] == ["slip"]
+    assert slip_true / 1.5 < el["slip"] < slip_true * 1.5, (el["slip"], slip_true)
+    assert el["objective"]["slip"]["quantity"].startswith("information criterion")
+    (coef,) = doc["coefficients"]
+    assert coef["unit"] == "N/m"
+    found = np.array([m["frequency_hz"] for m in doc["modes"]])
+    nested = doc["nonlinear_vs_linear"]
+    if nested["decision"] == "linear":
+        linear = sorted(m["frequency_hz"] for m in nested["linear_modes"])
+        assert np.allclose(sorted(found), linear), (found, linear)
+        assert coef["verdict"] == "not identifiable"
+        return
+    assert coef["verdict"] in ("identified", "weak")
+    free = np.array(truth["modes_joint_slipping_hz"])
+    for target in free[(free > 9) & (free < 13) & (np.abs(free - 10.48) > 0.1)]:
+        nearest = found[np.argmin(np.abs(found - target))]
+        assert abs(nearest / target - 1) < 0.005, (target, found)
+
+
+def test_validate_a_jenkins_model_says_what_it_found(gvt, tmp_path):
+    """``fnsi-lab validate`` of the 55 N Jenkins answer on the 84 N record (real CLI):
+    exit 0 and, per output, the linear fit's error (the result carries it); the nonlinear
+    model's error where the harmonic balance finds its steady state, else a note that it
+    found none (never a made-up number)."""
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
+    run = [sys.executable, "-m", "fnsi_lab"]
+    proc = subprocess.run(run + ["ident", str(gvt / "aircraft-rms55.mcap"), "--config",
+                                 str(gvt / "aircraft-jenkins.yaml"), "--auto", "--json",
+                                 "r55.json", "--quiet"], cwd=tmp_path, env=env,
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    proc = subprocess.run(run + ["validate", "r55.json", str(gvt / "aircraft-rms84.mcap"),
+                                 "--json", "v.json"], cwd=tmp_path, env=env,
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    val = json.loads((tmp_path / "v.json").read_text())
+    assert val["method"] == "harmonic balance"
+    for row in val["outputs"]:
+        assert row["linear_error_db"] < 0.0, row
+        if row["error_db"] is None:
+            assert any("no steady state" in w for w in val["warnings"]), val["warnings"]
+        else:
+            assert np.isfinite(row["error_db"])
