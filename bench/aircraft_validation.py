@@ -88,6 +88,7 @@ def main(argv: list[str] | None = None) -> int:
                  "nonlinear": {"order": nl.order,
                                "modes": _modes(nl, free if args.joint == "jenkins" else truth),
                                "decision": nl.nested.decision if nl.nested else None,
+                               "slip_m": [e.get("slip") for e in nl.to_json()["nonlinearities"]],
                                "coefficients": [{k: c.get(k) for k in
                                                  ("name", "value", "std_real", "verdict")}
                                                 for c in nl.coefficients]},
@@ -121,7 +122,7 @@ def main(argv: list[str] | None = None) -> int:
               f"| nl order {nl['order']:2d} modes {len(nl['modes'])} | "
               + " ".join(f"{c['name']}={c['value']:.3g}({c.get('verdict') or '?'})"
                          for c in nl["coefficients"])
-              + f" [{nl['decision']}]"
+              + f" [{nl['decision']}] slip {nl['slip_m']}"
               + f" | on {e['validated_on_n_rms']:g} N: nl {val(nl, 'error_db')}, "
                 f"its linear {val(nl, 'linear_error_db')}, linear fit {val(lin, 'linear_error_db')}")
         nl_truth = free if args.joint == "jenkins" else truth
