@@ -12,6 +12,7 @@ from fnsi_lab.viewer import log as vlog
 from fnsi_lab.viewer import paths
 from fnsi_lab.viewer.blueprint import blueprint
 from fnsi_lab.viewer.cli import rrd_entities, rrd_text, signal_groups
+from fnsi_lab.viewer.figure import dashes as figure_dashes
 
 
 def read_rrd(path) -> dict[str, list]:
@@ -365,3 +366,113 @@ def test_channels_are_coloured_by_direction_family():
     assert colours[1] in vlog.DIRECTION_PALETTES["Y"]
     assert colours[2] != colours[4] and colours[4] in vlog.DIRECTION_PALETTES["Z"]
     assert colours[5] in vlog.SIGNAL_PALETTE  # no direction: the plain palette
+
+
+def _union_kinds(column) -> list[str]:
+    """Kind of each value of a dense-union column (``Infinite``, ``CursorRelative``...)."""
+    return [column.type.field(int(t)).name for t in column.type_codes.to_pylist()]
+
+
+def test_one_update_reads_in_the_modes_figure_and_on_a_labelled_time_axis(rec_path, tmp_path):
+    """Issue 27: with one identification update every per-update series is one point. The
+    modes figure draws each mode of the update (damping against frequency, labelled with its
+    number, its values attached); the per-update views span the whole recording and 5 s past
+    the cursor (a time axis from 0 s with the update inside, not an axis of one tick); a
+    later update with fewer modes replaces the figure."""
+    rec, path = rec_path
+    view = {"convergence": {"update": 1, "acq_time_s": 49.152,
+                            "values": {"natural_frequency_hz": [10.67, 28.26, 28.41],
+                                       "damping_ratio": [0.056, 0.11, 0.10]}}}
+    vlog.log_identification(rec, view, update=1)
+    _finish(rec)
+    got = read_rrd(path)
+    modes = got[paths.MODES_POINTS]
+    assert static_values(modes, "frequency_hz") == [10.67, 28.26, 28.41]
+    assert static_values(modes, "damping_ratio") == [0.056, 0.11, 0.10]
+    assert column(modes, "Points2D:labels", static=True)[-1] == ["1", "2", "3"]
+    xy = np.array(column(modes, "Points2D:positions", static=True)[-1])
+    assert len(xy) == 3 and np.all(np.diff(xy[:, 0]) > 0)  # inside the plot, by frequency
+    # the per-update series are one point each: the figure, not they, reads at one update
+    assert column(got[paths.convergence_mode("natural_frequency_hz", 3)],
+                  "Scalars:scalars") == [[28.41]]
+    title = [t for t in column(got[f"{paths.MODES}/axes/labels"], "Points2D:labels",
+                               static=True)[-1] if "modes" in t]
+    assert title == ["3 modes: damping (%) vs frequency (Hz) (update 1)"]
+
+    two = rr.RecordingStream("fnsi-lab-test", recording_id="two-updates")
+    two.save(str(tmp_path / "two.rrd"))
+    vlog.log_identification(two, view, update=1)
+    vlog.log_identification(two, {"convergence": {
+        "update": 2, "acq_time_s": 60.0, "values": {"natural_frequency_hz": [10.6],
+                                                    "damping_ratio": [0.05]}}}, update=2)
+    _finish(two)
+    modes = read_rrd(tmp_path / "two.rrd")[paths.MODES_POINTS]
+    assert static_values(modes, "frequency_hz") == [10.6]
+    assert len(column(modes, "Points2D:positions", static=True)[-1]) == 1
+
+    # the blueprint: the modes figure in the Live tab; the three per-update views carry an
+    # x range from the recording's start to 5 s past the cursor
+    blueprint(("force",)).save("fnsi-lab-test", str(tmp_path / "b.rbl"))
+    reader = RrdReader(str(tmp_path / "b.rbl"))
+    names, ranges, origins = {}, {}, {}
+    for chunk in reader.stream(store=reader.blueprints()[0]).collect().stream():
+        batch, entity = chunk.to_record_batch(), str(chunk.entity_path)
+        if "ViewBlueprint:display_name" in batch.schema.names:
+            names[entity] = batch.column("ViewBlueprint:display_name").to_pylist()[-1][0]
+            origins[entity] = batch.column("ViewBlueprint:space_origin").to_pylist()[-1][0]
+        if "TimeAxis:view_range" in batch.schema.names:
+            r = batch.column("TimeAxis:view_range").flatten()
+            ranges[entity.rsplit("/", 1)[0]] = (_union_kinds(r.field("start")),
+                                                _union_kinds(r.field("end")),
+                                                r.field("end").to_pylist())
+    per_update = {names[v]: kinds for v, kinds in ranges.items()}
+    axis = (["Infinite"], ["CursorRelative"], [5_000_000_000])   # ns past the cursor
+    assert per_update == {"natural frequencies per update (Hz; hover: mode)": axis,
+                          "coefficients per update (mean Re)": axis,
+                          "status (hover: quantity)": axis}
+    assert paths.MODES in origins.values()
+
+
+def test_coefficient_panels_draw_re_and_im_with_units(rec_path):
+    """Issue 27: the viewer drew Re only; the report draws Re and Im. Each coefficient has a
+    Re panel (solid) over an Im panel (dashed, with the zero line of a real coefficient),
+    titled with Re / Im and the unit, the Im values attached."""
+    rec, path = rec_path
+    f = np.linspace(5.0, 50.0, 40)
+    c = 116.7 + 0.01 * np.sin(f / 7) + 1j * (0.02 - 0.003 * f)   # N/mm, Im << Re
+    vlog.log_coefficients(rec, f, full={"NC2-Z:neg": c * 1.0001}, reduced={"NC2-Z:neg": c},
+                          exact={"NC2-Z:neg": 116.7}, units={"NC2-Z:neg": "N/mm"}, update=1)
+    _finish(rec)
+    got = read_rrd(path)
+    im = got[paths.coefficient_im("NC2-Z:neg", "reduced")]
+    assert static_values(im, "im") == pytest.approx(c.imag)
+    assert static_values(got[paths.coefficient("NC2-Z:neg", "reduced")], "re") == \
+        pytest.approx(c.real)
+    # dashed: many short strips along the curve (14 canvas units on, 9 off), vs one solid
+    dashes = column(im, "LineStrips2D:strips", static=True)[-1]
+    solid = column(got[paths.coefficient("NC2-Z:neg", "reduced")], "LineStrips2D:strips",
+                   static=True)[-1]
+    assert len(solid) == 1 and len(dashes) > 20
+    for d in dashes:
+        d = np.asarray(d)
+        assert np.hypot(*np.diff(d, axis=0).T).sum() <= 14.0 + 1e-3  # float32 positions
+    zero = got[paths.coefficient_im("NC2-Z:neg", "zero")]
+    assert len(column(zero, "LineStrips2D:strips", static=True)[-1]) == 1
+    panel = paths.coefficient_panel("NC2-Z:neg")
+    re_labels = column(got[f"{panel}/axes/labels"], "Points2D:labels", static=True)[-1]
+    im_labels = column(got[f"{panel}/im/axes/labels"], "Points2D:labels", static=True)[-1]
+    assert "Re NC2-Z:neg (N/mm) (update 1)" in re_labels
+    assert "Im NC2-Z:neg (N/mm), dashed" in im_labels
+    legend = column(got[f"{panel}/im/legend"], "Points2D:labels", static=True)[-1]
+    assert legend == ["Im, full model", "Im, reduced model", "0: real"]
+    # the Im axis is Im's own (it includes 0), not Re's 116.7: the curve spans the panel
+    ys = np.concatenate([np.asarray(s)[:, 1] for s in dashes])
+    assert np.ptp(ys) > 0.5 * 300 * 4 / 2 / 2   # > half of an Im panel's height (4 rows, 2 panels)
+
+
+def test_dashes_follow_the_line_with_gaps():
+    line = np.array([[0.0, 0.0], [100.0, 0.0]])
+    got = figure_dashes(line, on=10.0, off=5.0)
+    assert len(got) == 7                       # 0-10, 15-25, ..., 90-100
+    assert [d[0, 0] for d in got] == pytest.approx([0, 15, 30, 45, 60, 75, 90])
+    assert all(np.ptp(d[:, 0]) == pytest.approx(10.0) for d in got)

@@ -115,14 +115,19 @@ def log_example(rec: rr.RecordingStream) -> None:
 CHECKS = {
     0: [("force signal", (0.0, 0.0, 0.55, 0.45), vlog.SIGNAL_PALETTE[0], 1500),
         ("displacement signals", (0.0, 0.5, 0.55, 1.0), vlog.SIGNAL_PALETTE[1], 1500),
-        # the one update of a run is a visible marker (right of the legend, at the cursor)
-        ("mode 1 after one update", (0.75, 0.0, 1.0, 0.17), vlog.SIGNAL_PALETTE[0], 25)],
+        # the one update: both modes in the modes figure (top right) and as markers at 3 s
+        # on the per-update view's 0-8 s axis (issue 27: not on the view's edge)
+        ("modes figure after one update", (0.62, 0.04, 0.93, 0.26), vlog.SIGNAL_PALETTE[:2],
+         25),
+        ("modes after one update", (0.7, 0.3, 0.85, 0.45), vlog.SIGNAL_PALETTE[:2], 25)],
     1: [("stabilisation diagram", (0.0, 0.0, 0.58, 1.0), vlog.POLE_STYLE["stable"][0], 400),
         ("information criterion", (0.62, 0.0, 1.0, 1.0), (0, 114, 178), 300)],
-    2: [("FRF model", (0.0, 0.0, 0.48, 1.0), vlog.FRF_STYLE["model"][0], 300),
-        ("FRF underlying linear", (0.0, 0.0, 0.48, 1.0), vlog.FRF_STYLE["linear"][0], 400),
-        ("MDI", (0.52, 0.0, 1.0, 0.48), (0, 158, 115), 60),
-        ("coefficients", (0.52, 0.52, 1.0, 1.0), vlog.COEFFICIENT_PALETTE[0], 300)],
+    2: [("FRF model", (0.0, 0.0, 0.40, 0.62), vlog.FRF_STYLE["model"][0], 300),
+        ("FRF underlying linear", (0.0, 0.0, 0.40, 0.62), vlog.FRF_STYLE["linear"][0], 400),
+        ("MDI", (0.0, 0.66, 0.40, 1.0), (0, 158, 115), 30),
+        ("coefficient Re", (0.57, 0.0, 0.87, 0.5), vlog.COEFFICIENT_PALETTE[0], 300),
+        ("coefficient Im (dashed)", (0.57, 0.52, 0.87, 1.0), vlog.COEFFICIENT_PALETTE[0],
+         300)],
 }
 
 
@@ -131,41 +136,49 @@ CHECKS = {
 _UPDATE_COLOURS = tuple(c for c in vlog.SIGNAL_PALETTE if len(set(c)) > 1)
 
 #: What the README's main command draws (simulated SmallSat: 1 force and 39 displacement
-#: channels, one update, 417 poles, 9 physical modes, two coefficients NC2-Z:neg and
+#: channels, one update, 417 poles, 10 physical modes, two coefficients NC2-Z:neg and
 #: NC2-Z:pos), tab -> [(region, box, colours, pixels)]. Boxes are fractions of the views'
 #: area and stop short of the legends (written right of each figure; at the left of the
 #: per-update views), so a legend alone counts 0: with every data series removed from the
 #: .rrd (axes, legends, summary kept) each region below held 0 pixels of its colours, while
 #: a legend entry outside them holds 21-106. Counts of the run on 2026-11-25 (threshold):
 #: force 12555 (1500) and displacement 7032 (1500): the signal curves over 20 s;
-#: per-update markers (one update, drawn at the cursor, the extremes half clipped by the
-#: view's autoscale): natural frequencies 179 (60: one whole marker is ~60 px), status
-#: 168-175 (60), coefficients 26 (12: half a marker; the other is under the cursor's head);
 #: stabilisation 3791 (400: a pole is ~10 px, 363 are fully stable), information criterion
-#: 1204 (300), FRF model 5617 (400) and underlying linear 2309 (400), MDI of the 9 physical
-#: poles 195 (60: a pole is ~20 px), coefficient spectra 721 and 826 (300 each: a curve).
+#: 1204 (300). Counts of 2026-11-27 (layout of issue 27: the modes figure, the per-update
+#: views over the whole recording and 5 s past the cursor, the coefficients' Re over Im in
+#: the Frequency tab's right column; besides the data, these regions hold only the greys of
+#: frames, grids and label boxes): modes figure 158 (80: 10 markers of ~40 px, pairs
+#: overlapping); per-update markers, whole and inside the view at 49 s of 0-54 s (the
+#: region right of 0.9; left of it 0: the update is not drawn elsewhere), natural
+#: frequencies 207 (100), coefficients 64 (40: ~30 px a marker), status 221 (100); FRF
+#: model 1663, measured 7388, underlying linear 890 (400 each), MDI of the physical poles
+#: 214 (60), coefficient spectra Re 1102 and 1135, Im (dashed) 537 and 832 (300 each).
 MAIN_CHECKS = {
     0: [("force signal", (0.0, 0.0, 0.55, 0.45), vlog.SIGNAL_PALETTE[0], 1500),
         # 39 displacement channels in three colour families, one per direction
         ("displacement signals", (0.0, 0.5, 0.55, 1.0),
          [c for p in vlog.DIRECTION_PALETTES.values() for c in p], 1500),
-        ("natural frequencies of the update", (0.75, 0.0, 1.0, 0.18), _UPDATE_COLOURS, 60),
-        ("coefficients of the update", (0.75, 0.2, 1.0, 0.36), vlog.COEFFICIENT_PALETTE[:2],
-         12),
-        ("status of the update", (0.75, 0.42, 1.0, 0.58), _UPDATE_COLOURS, 60)],
+        ("modes figure of the update", (0.62, 0.04, 0.93, 0.26), _UPDATE_COLOURS, 80),
+        ("natural frequencies of the update", (0.9, 0.3, 1.0, 0.45), _UPDATE_COLOURS, 100),
+        ("coefficients of the update", (0.9, 0.47, 1.0, 0.6), vlog.COEFFICIENT_PALETTE[:2],
+         40),
+        ("status of the update", (0.9, 0.63, 1.0, 0.77), _UPDATE_COLOURS, 100)],
     1: [("stabilisation diagram", (0.0, 0.0, 0.49, 1.0), vlog.POLE_STYLE["stable"][0], 400),
         # each class in its own colour, the few "+ damping" (9) and "new" (~20) poles too:
         # a marker is ~10 px (issue 27: they were orange like "unstable", grey on grey)
         ("+ damping poles", (0.0, 0.0, 0.49, 1.0), vlog.POLE_STYLE["damping"][0], 30),
         ("new poles", (0.0, 0.0, 0.49, 1.0), vlog.POLE_STYLE["new"][0], 30),
         ("information criterion", (0.6, 0.0, 0.92, 1.0), (0, 114, 178), 300)],
-    2: [("FRF model", (0.0, 0.0, 0.40, 1.0), vlog.FRF_STYLE["model"][0], 400),
+    2: [("FRF model", (0.0, 0.0, 0.40, 0.62), vlog.FRF_STYLE["model"][0], 400),
         # the measured markers drawn on top of the model line (issue 27: hidden under it)
-        ("FRF measured", (0.0, 0.0, 0.40, 1.0), vlog.FRF_STYLE["measured"][0], 400),
-        ("FRF underlying linear", (0.0, 0.0, 0.40, 1.0), vlog.FRF_STYLE["linear"][0], 400),
-        ("MDI of the physical poles", (0.52, 0.0, 0.905, 0.48), (0, 158, 115), 60),
-        ("coefficient NC2-Z:neg", (0.52, 0.52, 0.87, 1.0), vlog.COEFFICIENT_PALETTE[0], 300),
-        ("coefficient NC2-Z:pos", (0.52, 0.52, 0.87, 1.0), vlog.COEFFICIENT_PALETTE[1], 300)],
+        ("FRF measured", (0.0, 0.0, 0.40, 0.62), vlog.FRF_STYLE["measured"][0], 400),
+        ("FRF underlying linear", (0.0, 0.0, 0.40, 0.62), vlog.FRF_STYLE["linear"][0], 400),
+        ("MDI of the physical poles", (0.0, 0.66, 0.40, 1.0), (0, 158, 115), 60),
+        # Re over Im of each coefficient, as in the HTML report (issue 27: Re only)
+        ("Re NC2-Z:neg", (0.57, 0.0, 0.87, 0.27), vlog.COEFFICIENT_PALETTE[0], 300),
+        ("Im NC2-Z:neg", (0.57, 0.28, 0.87, 0.5), vlog.COEFFICIENT_PALETTE[0], 300),
+        ("Re NC2-Z:pos", (0.57, 0.5, 0.87, 0.72), vlog.COEFFICIENT_PALETTE[1], 300),
+        ("Im NC2-Z:pos", (0.57, 0.74, 0.87, 1.0), vlog.COEFFICIENT_PALETTE[1], 300)],
 }
 
 

@@ -137,9 +137,13 @@ class Series:
     x: np.ndarray
     y: np.ndarray
     color: tuple[int, int, int]
-    kind: str = "line"  # "line" or "points"
+    kind: str = "line"  # "line", "dashed" (a line drawn in dashes) or "points"
     width: float = 1.0  # line width or marker radius, ui points
     legend: bool = True
+    #: Points only: a text written at each point (its value, e.g. ``"28.3 Hz"``) and one
+    #: colour per point (else ``color``).
+    labels: list[str] = field(default_factory=list)
+    point_colors: list[tuple[int, int, int]] = field(default_factory=list)
     #: Physical values stored with the series (``rr.AnyValues``, one per point or line
     #: vertex) so that the dataframe API returns the data, not only canvas coordinates.
     values: dict[str, Any] = field(default_factory=dict)
@@ -205,6 +209,28 @@ def _segments(xy: np.ndarray) -> list[np.ndarray]:
     return out
 
 
+def dashes(polyline: np.ndarray, on: float = 14.0, off: float = 9.0) -> list[np.ndarray]:
+    """Cut a finite polyline, shape (n, 2), into dashes ``on`` long with gaps ``off`` long
+    (canvas units, measured along the line).
+
+    Returns
+    -------
+    list of ndarray, each shape (m, 2)
+        The dashes, each following the line (corners kept).
+    """
+    xy = np.asarray(polyline, dtype=float)
+    if len(xy) < 2:
+        return [xy] if len(xy) else []
+    s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T))])
+    out = []
+    for start in np.arange(0.0, s[-1], on + off):
+        end = min(start + on, s[-1])
+        inner = (s > start) & (s < end)
+        at = np.concatenate([[start], s[inner], [end]])
+        out.append(np.c_[np.interp(at, s, xy[:, 0]), np.interp(at, s, xy[:, 1])])
+    return out
+
+
 # ---------------------------------------------------------------------------- Rerun part
 class Figure:
     """Log :class:`Panel` s under one entity (one ``Spatial2DView`` origin).
@@ -265,11 +291,18 @@ class Figure:
                  (xy[:, 1] >= p.top - 1) & (xy[:, 1] <= p.top + p.height + 1)
         if s.kind == "points":
             keep = inside & np.all(np.isfinite(xy), axis=1)
-            self.rec.log(entity, rr.Points2D(xy[keep], colors=[s.color],
+            colors = [c for c, k in zip(s.point_colors, keep) if k] if s.point_colors \
+                else [s.color]
+            labels = [t for t, k in zip(s.labels, keep) if k] if s.labels else None
+            self.rec.log(entity, rr.Points2D(xy[keep], colors=colors, labels=labels,
+                                             show_labels=bool(labels),
                                              radii=rr.Radius.ui_points(s.width)), static=True)
         else:
             xy = np.where(inside[:, None], xy, np.nan)
-            self.rec.log(entity, rr.LineStrips2D(_segments(xy), colors=[s.color],
+            strips = _segments(xy)
+            if s.kind == "dashed":
+                strips = [d for strip in strips for d in dashes(strip)]
+            self.rec.log(entity, rr.LineStrips2D(strips, colors=[s.color],
                                                  radii=rr.Radius.ui_points(s.width)), static=True)
         if s.values:  # every value, also those outside the visible range
             self.rec.log(entity, rr.AnyValues(**{k: np.asarray(v) for k, v in s.values.items()}),

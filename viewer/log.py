@@ -76,11 +76,12 @@ FRF_STYLE: dict[str, tuple[tuple[int, int, int], str]] = {
 }
 
 #: Canvas of each figure: (rows, plot height) -> ``figure.canvas_range`` for the blueprint.
-#: Tall plots for the Order tab's tall views, two rows for the FRF (magnitude over phase)
-#: and for the coefficients (their panels share the two rows).
+#: Tall plots for the Order tab's tall views, two rows for the FRF (magnitude over phase),
+#: four for the coefficients (Re over Im of each: two coefficients at full height, more
+#: share the rows).
 FIGURE_LAYOUT: dict[str, tuple[int, float]] = {
     paths.STABILISATION: (1, 620.0), paths.ORDER: (1, 620.0), paths.FRF: (2, 380.0),
-    paths.MDI: (1, 300.0), paths.COEFFICIENTS: (2, 300.0)}
+    paths.MDI: (1, 300.0), paths.COEFFICIENTS: (4, 300.0), paths.MODES: (1, 420.0)}
 
 #: One colour per estimated coefficient (the full-model curve is a lighter shade).
 COEFFICIENT_PALETTE: tuple[tuple[int, int, int], ...] = (_BLUE, _RED, _GREEN, _PURPLE,
@@ -394,7 +395,8 @@ def log_coefficients(rec: rr.RecordingStream, frequency_hz: Any,
                      exact: Mapping[str, float] | None = None, *, excited: Any = None,
                      units: Mapping[str, str] | None = None,
                      update: int | None = None) -> None:
-    """Real part of each estimated nonlinear coefficient c_a(f), one panel each.
+    """Re and Im of each estimated nonlinear coefficient c_a(f): a panel of each, Re over Im
+    (the HTML report's rows), Im dashed with the zero line a physical coefficient sits on.
 
     Parameters
     ----------
@@ -419,35 +421,83 @@ def log_coefficients(rec: rr.RecordingStream, frequency_hz: Any,
     if band.size != freq.size or not band.any():
         band = np.ones(freq.size, bool)
     band = band[order]
+    fx = Axis.fit("frequency (Hz)", freq[band], pad=0.02)
     names = list(dict.fromkeys(list(reduced) + list(full)))
     panels = []
     for k, name in enumerate(names):
         color = COEFFICIENT_PALETTE[k % len(COEFFICIENT_PALETTE)]
         est = {w: np.asarray(t[name]).ravel()[order] for w, t in
                (("full", full), ("reduced", reduced)) if name in t}
-        known = exact.get(name)
-        inc = [float(known)] if known is not None else []
         unit = (units or {}).get(name, "")
-        label = f"Re {name}" + (f" ({unit})" if unit else "")
-        panel = Panel(paths.part(name), _title(label, update),
-                      Axis.fit("frequency (Hz)", freq[band], pad=0.02),
-                      Axis.fit(label,
-                               _robust_range(*[c.real[band] for c in est.values()]),
-                               include=inc, pad=0.3))
-        for which, c in est.items():
-            shade = _lighter(color) if which == "full" and "reduced" in est else color
-            panel.series.append(Series(which, f"{which} model", freq, c.real,
-                                       shade, width=1.2 if which == "full" else 1.6,
-                                       values={"frequency_hz": freq, "re": c.real,
-                                               "im": c.imag}))
-        if known is not None:
-            span = [freq[band].min(), freq[band].max()] if freq.size else []
-            panel.series.append(Series("exact", f"exact {float(known):.4g}"
-                                       + (f" {unit}" if unit else ""), np.array(span),
-                                       np.full(len(span), float(known)), _BLACK, width=1.0,
-                                       values={"exact": np.array([float(known)])}))
-        panels.append(panel)
+        panels += _coefficient_panels(name, unit, freq, band, fx, est, exact.get(name),
+                                      color, update)
     Figure(rec, paths.COEFFICIENTS).log(stack(panels, *FIGURE_LAYOUT[paths.COEFFICIENTS]))
+
+
+def _coefficient_panels(name: str, unit: str, freq: np.ndarray, band: np.ndarray, fx: Axis,
+                        est: Mapping[str, np.ndarray], known: float | None,
+                        color: tuple[int, int, int], update: int | None) -> list[Panel]:
+    """The Re panel (solid; the exact value) and the Im panel (dashed; zero) of one
+    coefficient; ``est``: 'full'/'reduced' -> complex c_a at ``freq``."""
+    suffix = f" ({unit})" if unit else ""
+    inc = [float(known)] if known is not None else []
+    re_panel = Panel(paths.part(name), _title(f"Re {name}{suffix}", update), fx,
+                     Axis.fit(f"Re {name}{suffix}",
+                              _robust_range(*[c.real[band] for c in est.values()]),
+                              include=inc, pad=0.3))
+    im_panel = Panel(f"{paths.part(name)}/im", f"Im {name}{suffix}, dashed", fx,
+                     Axis.fit(f"Im {name}{suffix}",
+                              _robust_range(*[c.imag[band] for c in est.values()]),
+                              include=[0.0], pad=0.3))
+    for which, c in est.items():
+        shade = _lighter(color) if which == "full" and "reduced" in est else color
+        width = 1.2 if which == "full" else 1.6
+        re_panel.series.append(Series(which, f"Re, {which} model", freq, c.real, shade,
+                                      width=width, values={"frequency_hz": freq, "re": c.real,
+                                                           "im": c.imag}))
+        im_panel.series.append(Series(which, f"Im, {which} model", freq, c.imag, shade,
+                                      kind="dashed", width=width,
+                                      values={"frequency_hz": freq, "im": c.imag}))
+    span = np.array([freq[band].min(), freq[band].max()]) if freq.size else np.zeros(0)
+    if known is not None:
+        re_panel.series.append(Series("exact", f"exact {float(known):.4g}{unit and ' ' + unit}",
+                                      span, np.full(span.size, float(known)), _BLACK,
+                                      width=1.0, values={"exact": np.array([float(known)])}))
+    im_panel.series.append(Series("zero", "0: real", span, np.zeros(span.size), _GREY,
+                                  width=1.0))
+    return [re_panel, im_panel]
+
+
+def log_modes(rec: rr.RecordingStream, frequency_hz: Any, damping_ratio: Any = None, *,
+              update: int | None = None) -> None:
+    """The physical modes of one update: damping ratio (%) against natural frequency (Hz),
+    each marker labelled with its mode number (``mode 3`` of the per-update series). Reads
+    with a single update, where the per-update series are one point each.
+
+    Parameters
+    ----------
+    frequency_hz : array_like, shape (n_modes,)
+        Natural frequencies, ascending (mode k is the k-th, as in the per-update series).
+    damping_ratio : array_like, shape (n_modes,), optional
+        Damping ratios (fractions of critical); without them the modes sit on 0.
+    update : int, optional
+        Identification update (shown in the title).
+    """
+    f = np.asarray(frequency_hz, dtype=float).ravel()
+    zeta = np.zeros(f.size) if damping_ratio is None else \
+        np.asarray(damping_ratio, dtype=float).ravel()[:f.size]
+    zeta = np.pad(zeta, (0, f.size - zeta.size), constant_values=np.nan)
+    panel = Panel("", _title(f"{f.size} modes: damping (%) vs frequency (Hz)", update),
+                  Axis.fit("natural frequency (Hz)", f, include=[0.0], pad=0.06),
+                  Axis.fit("damping ratio (%)", 100 * zeta, include=[0.0], pad=0.2))
+    # every mode in one entity (an update with fewer modes replaces all of them), in the
+    # colour of its per-update series
+    panel.series.append(Series(
+        "modes", "mode", f, 100 * zeta, _BLUE, kind="points", width=4.0, legend=False,
+        labels=[str(k + 1) for k in range(f.size)],
+        point_colors=[SIGNAL_PALETTE[k % len(SIGNAL_PALETTE)] for k in range(f.size)],
+        values={"mode": np.arange(1, f.size + 1), "frequency_hz": f, "damping_ratio": zeta}))
+    Figure(rec, paths.MODES).log(stack([panel], *FIGURE_LAYOUT[paths.MODES]))
 
 
 def log_convergence(rec: rr.RecordingStream, update: int, acq_time_s: float,
@@ -619,7 +669,8 @@ def log_identification(rec: rr.RecordingStream, view: Mapping[str, Any], *,
         Optional keys, each a dict of the keyword arguments of one ``log_*`` function:
         ``frf`` (:func:`log_frf`, with ``frequency_hz``), ``stabilisation``,
         ``criterion`` (:func:`log_information_criterion`), ``mdi``, ``coefficients``,
-        ``convergence`` (with ``update``, ``acq_time_s``, ``values``), ``parameters``
+        ``convergence`` (with ``update``, ``acq_time_s``, ``values``; its per-mode
+        ``natural_frequency_hz``/``damping_ratio`` also drawn by :func:`log_modes`), ``parameters``
         (:func:`log_parameter_objective`), ``restoring_force`` (:func:`log_restoring_force`),
         and ``summary`` (markdown text). The stabilisation diagram marks the criterion's selected order.
     update : int, optional
@@ -645,5 +696,9 @@ def log_identification(rec: rr.RecordingStream, view: Mapping[str, Any], *,
         log_restoring_force(rec, **view["restoring_force"], update=update)
     if "convergence" in view:
         log_convergence(rec, **view["convergence"])
+        values = view["convergence"].get("values") or {}
+        if "natural_frequency_hz" in values:
+            log_modes(rec, values["natural_frequency_hz"], values.get("damping_ratio"),
+                      update=view["convergence"].get("update", update))
     if "summary" in view:
         log_summary(rec, view["summary"])

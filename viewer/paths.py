@@ -47,9 +47,14 @@ MDI = "/ident/mdi"
 MDI_KEPT = "/ident/mdi/kept"
 MDI_REMOVED = "/ident/mdi/removed"
 MDI_THRESHOLD = "/ident/mdi/threshold"
-#: Nonlinear coefficients against frequency: one panel per estimated coefficient with
-#: ``full`` (before reduction), ``reduced`` (after) and ``exact`` (when known).
+#: Nonlinear coefficients against frequency: per estimated coefficient a panel of Re c_a with
+#: ``full`` (before reduction), ``reduced`` (after) and ``exact`` (when known), and one of
+#: Im c_a (``<name>/im/{full,reduced,zero}``, dashed).
 COEFFICIENTS = "/ident/coefficients"
+#: The physical modes of the latest update: damping ratio (%) against natural frequency (Hz),
+#: each marker labelled with its mode number (a figure: one update reads at once).
+MODES = "/ident/modes"
+MODES_POINTS = "/ident/modes/modes"
 #: Basis parameters estimated from the data (clearances, exponents): the FNSI model error
 #: against each parameter, the estimate marked; one panel per parameter.
 PARAMETERS = "/ident/parameters"
@@ -104,6 +109,12 @@ def coefficient_panel(name: str) -> str:
 def coefficient(name: str, which: str) -> str:
     """Entity path of coefficient ``name``; ``which`` in {'full', 'reduced', 'exact'}."""
     return f"{coefficient_panel(name)}/{which}"
+
+
+def coefficient_im(name: str, which: str) -> str:
+    """Entity path of the imaginary part of coefficient ``name`` (its Im panel);
+    ``which`` in {'full', 'reduced', 'zero'}."""
+    return f"{coefficient_panel(name)}/im/{which}"
 
 
 def convergence(quantity: str) -> str:
