@@ -16,7 +16,8 @@ import pytest
 
 from fnsi_lab.ident.config import parse_ident_config
 from fnsi_lab.ident.core.basis import Nonlinearity
-from fnsi_lab.ident.core.hysteresis import periodic_play, periodic_play_slope
+from fnsi_lab.ident.core.hysteresis import (periodic_play, periodic_play_anchors,
+                                            periodic_play_slope)
 from fnsi_lab.ident.errors import IdentConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -61,6 +62,23 @@ def test_the_steady_cycle_does_not_depend_on_where_the_period_starts():
     d -= np.linspace(0, d[-1] - d[0], d.size)     # periodic
     z = periodic_play(d, 3.0)
     assert np.allclose(np.roll(periodic_play(np.roll(d, 321), 3.0), -321), z, atol=1e-12)
+
+
+def test_the_memory_gives_the_exact_derivative():
+    """The play operator's directional derivative: ``d_delta[n] - d_delta[a]`` while stuck
+    (``a`` the stick phase's start), 0 while slipping. A central difference (step 1e-7 of
+    the motion) agrees to 1e-6; the memoryless tangent (1 stuck, 0 slipping) is off by
+    the whole perturbation (~100 %): why the harmonic balance needs the anchors."""
+    t = np.arange(2000) / 2000
+    d = 2 * np.sin(2 * np.pi * t) + 0.3 * np.sin(6 * np.pi * t + 1)
+    e = np.cos(2 * np.pi * 3 * t + 0.3)
+    slip, h = 0.5, 1e-7
+    fd = (periodic_play(d + h * e, slip) - periodic_play(d - h * e, slip)) / (2 * h)
+    a = periodic_play_anchors(d, slip)
+    exact = np.where(a >= 0, e - e[np.maximum(a, 0)], 0.0)
+    assert np.max(np.abs(exact - fd)) < 1e-6
+    assert np.max(np.abs(periodic_play_slope(d, slip) * e - fd)) > 0.5
+    assert np.all(periodic_play_anchors(d, 10.0) == d.size - 1)    # never slips
 
 
 def test_config_and_element():
@@ -156,3 +174,43 @@ def test_validate_a_jenkins_model_says_what_it_found(gvt, tmp_path):
             assert any("no steady state" in w for w in val["warnings"]), val["warnings"]
         else:
             assert np.isfinite(row["error_db"])
+
+
+def test_harmonic_balance_of_a_jenkins_model(gvt):
+    """The balance's linearisation of a Jenkins column against a central difference of its
+    basis spectra on the GVT's measured motion (slip 50 um; the fine grid of 8x8192
+    points): within 1 % (measured 0.13-0.23 %; the memoryless tangent: 87 % off). Then a
+    Jenkins model of the 55 N record (order 16, no linear comparison, no refinement)
+    simulated on the 84 N record: the balance converges and the model's error is at least
+    3 dB below its underlying linear part's on every output (measured 4.4-10.7 dB at
+    orders 16 and 20): the friction term predicts what the slipping structure alone
+    cannot."""
+    import fnsi_lab
+    from fnsi_lab.ident.refine.harmonic_balance import BalanceState, HarmonicBalance
+    from fnsi_lab.ident.session import prepare_session
+    from fnsi_lab.inputs import load_input
+
+    cfg = {"band_hz": [2, 15], "transient_periods": 1, "output_quantity": "acceleration",
+           "inputs": [{"name": "F-shaker", "driving_point": "drive"}], "refine": "none",
+           "compare_linear": False,
+           "nonlinearities": [{"name": "joint", "kind": "jenkins",
+                               "channels": {"wing": 1, "payload": -1}, "slip": 5.0e-5}]}
+    config = parse_ident_config(cfg)
+    session = prepare_session(load_input(str(gvt / "aircraft-rms55.mcap")), config)
+    basis = config.nonlinearities
+    bal = HarmonicBalance(session.data, basis)
+    d0 = bal.measured.copy()
+    state = BalanceState(delta=d0, H=np.empty(0), iterations=0, residual=np.inf)
+    bal.linearise(state, np.ones((bal.F0, bal.n_el, bal.s), complex), basis)
+    rng = np.random.default_rng(0)
+    dd = (rng.standard_normal(d0.shape) + 1j * rng.standard_normal(d0.shape)) * np.abs(d0)
+    h = 1e-4
+    fd = (bal.basis_spectra(d0 + h * dd, basis) - bal.basis_spectra(d0 - h * dd, basis)) / (2 * h)
+    exact = bal.apply_slopes(state, dd[..., None])[..., 0]
+    assert np.linalg.norm(exact - fd) < 0.01 * np.linalg.norm(fd)
+
+    res = fnsi_lab.identify(str(gvt / "aircraft-rms55.mcap"), cfg, order=16)
+    val = fnsi_lab.validate_model(res, gvt / "aircraft-rms84.mcap")
+    assert val.method == "harmonic balance" and val.converged
+    for row in val.outputs:
+        assert row["error_db"] <= row["linear_error_db"] - 3.0, row

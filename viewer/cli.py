@@ -458,9 +458,13 @@ def _cmd_view(args: argparse.Namespace) -> int:
             except KeyboardInterrupt:
                 pass
             # Ctrl-C: the file was sent long ago; a bounded flush, so that stopping never
-            # waits on a viewer connection
-            rec.flush(timeout_sec=5.0)
-            rec.disconnect()
+            # waits on a viewer connection. A second interrupt while it runs (rerun's flush
+            # can surface the first one again: exit 130 once in CI) loses nothing either.
+            try:
+                rec.flush(timeout_sec=5.0)
+                rec.disconnect()
+            except KeyboardInterrupt:
+                pass
             return 0
         close_stream(rec, sinks)
     return 0

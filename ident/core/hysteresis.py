@@ -27,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["periodic_play", "periodic_play_slope"]
+__all__ = ["periodic_play", "periodic_play_slope", "periodic_play_anchors"]
 
 
 @njit(cache=True, nogil=True)
@@ -52,6 +52,57 @@ def _play_two_passes(delta: np.ndarray, slip: float) -> tuple[np.ndarray, np.nda
                 z_out[i] = z
                 stuck[i] = moving
     return z_out, stuck
+
+
+@njit(cache=True, nogil=True)
+def _anchors(delta: np.ndarray, slip: float) -> np.ndarray:
+    """Per sample of the second pass: the last slipping sample before it (its stick phase's
+    start), -1 on a slipping sample, ``n - 1`` throughout when it never slips."""
+    n = delta.shape[0]
+    out = np.empty(n, np.int64)
+    z = 0.0
+    previous = delta[n - 1]
+    anchor = n - 1
+    for p in range(2):
+        for i in range(n):
+            trial = z + delta[i] - previous
+            previous = delta[i]
+            if trial > slip or trial < -slip:
+                z = slip if trial > slip else -slip
+                anchor = i
+                if p == 1:
+                    out[i] = -1
+            else:
+                z = trial
+                if p == 1:
+                    out[i] = anchor
+    return out
+
+
+def periodic_play_anchors(delta: np.ndarray, slip: float) -> np.ndarray:
+    """Where each stick phase of the periodic cycle began: the memory of the element.
+
+    While the joint sticks, ``z[n] = z[a] + delta[n] - delta[a]`` with ``a`` the last
+    slipping sample (``z[a] = +-slip``), so a perturbation of the motion moves ``z`` by
+    ``d_delta[n] - d_delta[a]``; while it slips ``z`` does not move. This is the exact
+    directional derivative the harmonic balance's Newton steps need (the tangent of
+    :func:`periodic_play_slope` alone drops the ``- d_delta[a]`` term).
+
+    Parameters
+    ----------
+    delta : ndarray, shape (n_samples,)
+        One period of the relative displacement, as in :func:`periodic_play`.
+    slip : float
+
+    Returns
+    -------
+    ndarray of int, shape (n_samples,)
+        ``a`` per sample, ``-1`` where the joint slips.
+    """
+    d = np.ascontiguousarray(delta, dtype=float)
+    if d.size == 0:
+        return np.zeros(0, np.int64)
+    return _anchors(d, float(slip))
 
 
 def periodic_play(delta: np.ndarray, slip: float) -> np.ndarray:
