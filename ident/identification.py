@@ -90,7 +90,11 @@ class Identification:
 
     @property
     def order(self) -> int:
-        """Order of the answer model."""
+        """Order of the answer model: the linear fit's when the nonlinear terms are not
+        supported (its modes are the answer's; the nonlinear fit's order stays in
+        ``nested.order_nonlinear``)."""
+        if self.linear_answer and self.nested is not None and self.nested.linear is not None:
+            return int(self.nested.linear.order)
         return int(self.model.order)
 
     @property
