@@ -214,3 +214,17 @@ def test_harmonic_balance_of_a_jenkins_model(gvt):
     assert val.method == "harmonic balance" and val.converged
     for row in val.outputs:
         assert row["error_db"] <= row["linear_error_db"] - 3.0, row
+
+
+def test_a_velocity_curve_that_is_no_coulomb_law_points_to_jenkins():
+    """The spline's suggestion for a velocity curve no friction level explains (here a
+    cubic in the velocity: zero intercepts, so Coulomb leaves all of it) names
+    ``kind: jenkins`` as the next thing to try, since no velocity curve draws stick-slip."""
+    from fnsi_lab.ident.core.spline import SplineCurve, suggest_parametric
+
+    v = np.linspace(-1.0, 1.0, 41)
+    curve = SplineCurve(element="joint", argument="velocity", x=v, force=v ** 3,
+                        std=np.zeros_like(v), knots=(-0.5, -0.1, 0.1, 0.5),
+                        slopes=np.zeros(5), density=None)
+    out = suggest_parametric(curve)
+    assert out["kind"] == "none" and "kind: jenkins" in out["reason"], out

@@ -290,8 +290,11 @@ def suggest_parametric(curve: SplineCurve) -> dict:
     out = (_friction(x, f, curve.knots) if curve.argument == "velocity"
            else _displacement_form(curve))
     if not out.get("misfit", 0.0) <= MAX_MISFIT:    # NaN too
+        hint = ("; friction that is not Coulomb-like may stick and slip with memory, which "
+                "no curve in the velocity draws: try kind: jenkins, slip: auto there "
+                "(docs/discovery.md)" if curve.argument == "velocity" else "")
         return {"kind": "none", "reason": f"the best form ({out['kind']}) leaves "
-                f"{100 * out['misfit']:.0f} % of the curve unexplained", "closest": out}
+                f"{100 * out['misfit']:.0f} % of the curve unexplained{hint}", "closest": out}
     return out
 
 
