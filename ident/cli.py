@@ -171,9 +171,11 @@ def _print_parameter_summary(res: dict, out=None) -> None:
             print(f"  {nl['name']} {par} = {value:.6g}{unc}{err}", file=out)
             what = ("noise-weighted model error, corrected for the motion noise,"
                     if ob.get("noise_corrected") else ob.get("quantity") or "model error")
-            print(f"    {what} vs {par}: "
-                  f"{objective_sketch(ob['values'], ob['relative_model_error'])}"
-                  f"  (min {np.nanmin(ob['relative_model_error']):.3g})", file=out)
+            profile = np.array([np.nan if v is None else v for v in ob["relative_model_error"]],
+                               float)   # null: no opinion at that value (JSON has no NaN)
+            low = f"{np.nanmin(profile):.3g}" if np.isfinite(profile).any() else "-"
+            print(f"    {what} vs {par}: {objective_sketch(ob['values'], profile)}"
+                  f"  (min {low})", file=out)
 
 
 def _print_refinement(res: dict, out=None) -> None:

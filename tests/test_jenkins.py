@@ -228,3 +228,85 @@ def test_a_velocity_curve_that_is_no_coulomb_law_points_to_jenkins():
                         slopes=np.zeros(5), density=None)
     out = suggest_parametric(curve)
     assert out["kind"] == "none" and "kind: jenkins" in out["reason"], out
+
+
+SDOF_CONFIG = """\
+band_hz: [2, 40]
+output_quantity: displacement
+transient_periods: 1
+compare_linear: true
+nonlinearities:
+  - {name: joint, kind: jenkins, channels: {y0: 1}, slip: auto}
+"""
+
+
+@pytest.fixture(scope="module")
+def sdof_files(tmp_path_factory):
+    """A one-mode oscillator (1 kg, 10 Hz, 2 % damping) grounded through a Jenkins joint
+    (1974 N/m in series with a slider slipping at 0.1 mm: 0.2 N), integrated here by
+    semi-implicit Euler at 40x the 200 Hz sampling, independently of the package: 1 N and
+    1.5 N RMS multisines over 2-40 Hz (other phases), 6 periods of 2048, 60 dB noise. The
+    relative motion (0.5 mm RMS) is 5x the slip: the joint sticks and slips every cycle."""
+    from numba import njit
+
+    from fnsi_lab.daq.multisine import multisine
+
+    @njit(cache=False)
+    def integrate(u_fine, h, m, c, k, kj, slip):
+        x = v = z = 0.0
+        out = np.empty(u_fine.size)
+        for i in range(u_fine.size):
+            out[i] = x
+            v += h * (u_fine[i] - c * v - k * x - kj * z) / m
+            x += h * v
+            z = min(max(z + h * v, -slip), slip)
+        return out
+
+    fs, n, periods, over = 200.0, 2048, 6, 40
+    k = (2 * np.pi * 10.0) ** 2
+    folder = tmp_path_factory.mktemp("sdof")
+    for name, rms, seed in (("a", 1.0, 1), ("b", 1.5, 2)):
+        u = multisine(n, fs, (2.0, 40.0), rms, n_periods=periods, seed=seed).signal[0]
+        fine = np.fft.irfft(np.fft.rfft(u), n=u.size * over) * over   # band-limited force
+        y = integrate(fine, 1 / (fs * over), 1.0, 2 * 0.02 * np.sqrt(k), k, 0.5 * k, 1e-4)[::over]
+        y = y + 1e-3 * y.std() * np.random.default_rng(seed).standard_normal(y.size)
+        np.savez(folder / f"{name}.npz", u=u[:, None], y=y[:, None], fs=fs, N=n)
+        np.savez(folder / f"{name}-no-period.npz", u=u[:, None], y=y[:, None], fs=fs)
+    (folder / "jenkins.yaml").write_text(SDOF_CONFIG)
+    return folder
+
+
+def test_a_jenkins_joint_identified_and_validated(sdof_files):
+    """Through the real CLI: ``slip: auto`` within 5 % of the truth's 0.1 mm (measured
+    -2.1 %: the criterion's parabola between grid points 1.3x apart), the joint's stiffness
+    within 5 % of 1974 N/m (+2.0 %, its error following the slip's) and ``identified``, the
+    nonlinear model significantly better than the linear fit, the underlying linear mode
+    at the spring-only 10.000 Hz within 0.2 % (the linear fit: 10.2 Hz, 5 % damping).
+    Validated on the other level: by harmonic balance at least 30 dB below the linear fit's
+    error (measured -59.0 against -11.5 dB); by time integration from rest of the same record
+    without its period (the start-up transient included) at least 25 dB below (-47.3 dB)."""
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
+    run = [sys.executable, "-m", "fnsi_lab"]
+    proc = subprocess.run(run + ["ident", "a.npz", "--config", "jenkins.yaml", "--auto",
+                                 "--json", "a.json", "--quiet"], cwd=sdof_files, env=env,
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    doc = json.loads((sdof_files / "a.json").read_text())
+    (el,) = doc["nonlinearities"]
+    assert el["slip"] == pytest.approx(1e-4, rel=0.05)
+    (coef,) = doc["coefficients"]
+    assert coef["value"] == pytest.approx(0.5 * (2 * np.pi * 10.0) ** 2, rel=0.05)
+    assert coef["verdict"] == "identified" and coef["unit"] == "N/m"
+    assert doc["nonlinear_vs_linear"]["decision"] == "nonlinear"
+    (mode,) = doc["modes"]
+    assert mode["frequency_hz"] == pytest.approx(10.0, rel=0.002)
+    for record, margin in (("b.npz", 30.0), ("b-no-period.npz", 25.0)):
+        out = f"v-{record}.json"
+        proc = subprocess.run(run + ["validate", "a.json", record, "--json", out],
+                              cwd=sdof_files, env=env, capture_output=True, text=True,
+                              timeout=600)
+        assert proc.returncode == 0, proc.stderr
+        val = json.loads((sdof_files / out).read_text())
+        assert val["method"] == ("harmonic balance" if record == "b.npz" else "time integration")
+        (row,) = val["outputs"]
+        assert row["error_db"] <= row["linear_fit_error_db"] - margin, (record, row)

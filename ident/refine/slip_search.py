@@ -168,5 +168,7 @@ def _estimate(u: Unknown, value: float, points: np.ndarray, objective: np.ndarra
             f"nonlinearity {u.name!r}: the data cannot tell slip: the information criterion is "
             f"smallest at the bottom of the search interval [{lo:.4g}, {hi:.4g}] (the joint "
             "slips nearly all the time: try kind: coulomb, or a search interval reaching lower)")
-    return ParameterEstimate(u, float(value), float("nan"), points, objective,
+    # inf: the criterion has no opinion there (no stable order): NaN, as the JSON's null
+    return ParameterEstimate(u, float(value), float("nan"), points,
+                             np.where(np.isfinite(objective), objective, np.nan),
                              objective_name=OBJECTIVE)

@@ -67,9 +67,8 @@ class SimulatedOutputs:
 
 #: Relative residual ``||delta - Lambda G e(delta)|| / ||delta||`` at which the validation's
 #: balance stops: an error of 1e-6 in the motion is 120 dB below it, far under any
-#: validation error worth reading. (The output-error refinement asks 1e-9; a hysteretic
-#: element's stick-slip switches on the sampled cycle left Newton at 4e-5-1e-7 there on
-#: the aircraft-like GVT, with no visible change of the prediction.)
+#: validation error worth reading (the output-error refinement, whose gradients need more,
+#: asks 1e-9).
 BALANCE_TOLERANCE = 1e-6
 
 
