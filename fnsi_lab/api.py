@@ -235,7 +235,8 @@ def analyse(sources: Any, config: Any = None, *, band_hz: Any = None, alpha: flo
 
 def locate(source: Any, config: Any = None, *, candidates: Any = "all",
            order: int | None = None, refine: int | None = None, knots: int | None = None,
-           progress: Any = None, samples_per_period: int | None = None) -> Any:
+           form: str = "generic", progress: Any = None,
+           samples_per_period: int | None = None) -> Any:
     """Where is the structure nonlinear: candidate locations ranked (docs/discovery.md).
 
     Parameters
@@ -254,6 +255,10 @@ def locate(source: Any, config: Any = None, *, candidates: Any = "all",
     refine, knots : int, optional
         Candidates of the screen re-ranked by FNSI with a spline of ``knots`` knots
         (defaults :data:`ident.locate.REFINE_TOP`, :data:`ident.locate.REFINE_KNOTS`).
+    form : {'generic', 'jenkins'}
+        The force offered at each candidate: the generic columns (default), or a Jenkins
+        element (stick-slip friction) ranked by the information criterion
+        (:mod:`ident.locate_stick_slip`; docs/discovery.md, "Bolted joints").
     progress : callable(str), optional
 
     Returns
@@ -285,7 +290,7 @@ def locate(source: Any, config: Any = None, *, candidates: Any = "all",
     return loc.locate_input(inp, cfg, candidates=candidates, order=order,
                             refine=loc.REFINE_TOP if refine is None else int(refine),
                             knots=loc.REFINE_KNOTS if knots is None else int(knots),
-                            progress=progress)
+                            form=form, progress=progress)
 
 
 def open_recording(path: str | os.PathLike[str], **kwargs: Any) -> Any:

@@ -21,7 +21,7 @@ from fnsi_lab.ident.identification import Identification
 from fnsi_lab.ident.robust.nested import NestedTest
 from fnsi_lab.ident.session import IdentSession
 
-__all__ = ["compare_with_linear"]
+__all__ = ["compare_with_linear", "split_periods"]
 
 
 def compare_with_linear(session: IdentSession, model: StateSpaceModel, modes: Sequence[Mode],
@@ -46,7 +46,7 @@ def compare_with_linear(session: IdentSession, model: StateSpaceModel, modes: Se
         session.warnings.append(f"no linear fit to compare the nonlinear terms with ({exc})")
         return None
     linear = Identification(linear_session, *linear_fit)
-    halves = _split_periods(session)
+    halves = split_periods(session)
     if halves is not None:   # the basis read on other periods than the outputs it explains
         data_nl, data_lin, how = (*halves, "basis columns from the odd periods, outputs and "
                                   "forces from the even ones")
@@ -59,7 +59,7 @@ def compare_with_linear(session: IdentSession, model: StateSpaceModel, modes: Se
                        verdicts=verdicts, linear=linear, evaluation=how)
 
 
-def _split_periods(session: IdentSession) -> tuple[FrequencyData, FrequencyData] | None:
+def split_periods(session: IdentSession) -> tuple[FrequencyData, FrequencyData] | None:
     """The data to judge the two models on without the motion's noise in the basis: the
     basis columns from the odd periods used, the outputs and forces from the even ones
     (``(nonlinear data, linear data)`` on the lines all three share), or None with fewer

@@ -50,6 +50,8 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from fnsi_lab.ident.errors import IdentError
+from fnsi_lab.ident.location_result import (P_SIGNIFICANT, Localisation, LocationScore,
+                                            location_name)
 
 __all__ = ["LocationScore", "Localisation", "candidate_locations", "generic_columns",
            "rank_locations", "locate_input", "read_candidates_file", "GENERIC_COLUMNS",
@@ -60,129 +62,12 @@ GENERIC_COLUMNS: tuple[str, ...] = ("x|x|", "x^3", "max(x - max(x)/2, 0)",
                                     "min(x - min(x)/2, 0)", "v|v|", "tanh(v / (0.05 max|v|))")
 #: Hinge positions, as fractions of the largest relative displacement on each side.
 HINGES: tuple[float, ...] = (0.5,)
-#: A reduction whose F-test p-value is below this is significant (the usual 0.1 % level).
-P_SIGNIFICANT = 1e-3
 #: ``significance`` is capped here: p-values below 1e-300 underflow (the JSON would hold
 #: infinity); such a reduction is beyond any doubt from the noise.
 MAX_SIGNIFICANCE = 300.0
 #: Friction's smoothed sign: ``tanh(v / (FRICTION_SCALE max|v|))``.
 FRICTION_SCALE = 0.05
 _DIRECTION_RE = re.compile(r"[-_:.\s][+-]?(R?[XYZ])$", re.IGNORECASE)
-
-
-@dataclass
-class LocationScore:
-    """How much one candidate location explains.
-
-    Attributes
-    ----------
-    channels : dict str -> float
-        Signed location vector ``L`` (``{A: 1, B: -1}``: the element between A and B).
-    score : float
-        Fraction of the linear model's weighted residual its generic columns remove (0..1).
-    significance : float
-        ``-log10`` of the F-test p-value of that reduction (3: p = 1e-3).
-    f_statistic : float
-    rss_ratio_to_best : float
-        Its residual over the best candidate's (1 for the best).
-    verdict : str
-        ``located``, ``as likely as the best``, ``significant`` or ``not significant``.
-    stage : {'screen', 'fnsi'}
-        Which test gave the numbers: the screen of every candidate, or the FNSI refinement
-        of the screen's best (their ``score`` and residuals are not comparable).
-    """
-
-    channels: dict
-    score: float
-    significance: float
-    f_statistic: float
-    rss_ratio_to_best: float
-    verdict: str
-    stage: str = "screen"
-
-    @property
-    def name(self) -> str:
-        """``A - B`` for a pair, ``A`` for a channel to ground."""
-        return location_name(self.channels)
-
-    def to_dict(self) -> dict:
-        return {"name": self.name, "channels": dict(self.channels), "score": self.score,
-                "significance": self.significance, "f_statistic": self.f_statistic,
-                "rss_ratio_to_best": self.rss_ratio_to_best, "verdict": self.verdict,
-                "stage": self.stage}
-
-
-@dataclass
-class Localisation:
-    """Candidates ranked best first (:func:`rank_locations`).
-
-    Attributes
-    ----------
-    candidates : list of LocationScore
-        Sorted by decreasing score.
-    order : int
-        Order of the linear model whose poles and shapes were used.
-    n_lines : int
-    columns : tuple of str
-        The generic columns of every candidate.
-    degrees_of_freedom : (int, int)
-        ``(df1, df2)`` of the F-test.
-    weighted : bool
-        Noise-weighted (the periods gave a noise estimate).
-    timings_s : dict
-    refined : int
-        Candidates re-ranked by FNSI (the first ``refined`` of ``candidates``).
-    refine_knots : int
-        Spline knots of the refinement (0: the generic columns alone).
-    linear_misfit : float or None
-        The linear model's residual per real residual in noise variances (weighted data):
-        about 1 when only noise is left; far above, the F-tests compare against a residual
-        that is mostly model error (transients, drift, distortion) and every candidate's
-        columns remove some of it (docs/discovery.md, "Limits").
-    """
-
-    candidates: list
-    order: int
-    n_lines: int
-    columns: tuple
-    degrees_of_freedom: tuple
-    weighted: bool
-    timings_s: dict = field(default_factory=dict)
-    warnings: list = field(default_factory=list)
-    refined: int = 0
-    refine_knots: int = 0
-    linear_misfit: float | None = None
-
-    @property
-    def located(self) -> "LocationScore | None":
-        """The best candidate when the data locate it (verdict ``located``), else None."""
-        return next((c for c in self.candidates if c.verdict == "located"), None)
-
-    @property
-    def supported(self) -> list:
-        """The candidates the data support: ``located`` and ``as likely as the best``."""
-        return [c for c in self.candidates if c.verdict in ("located", "as likely as the best")]
-
-    def to_json(self) -> dict:
-        return {"candidates": [c.to_dict() for c in self.candidates], "order": self.order,
-                "n_lines": self.n_lines, "columns": list(self.columns),
-                "degrees_of_freedom": list(self.degrees_of_freedom), "weighted": self.weighted,
-                "p_significant": P_SIGNIFICANT, "refined": self.refined,
-                "refine_knots": self.refine_knots, "linear_misfit": self.linear_misfit,
-                "timings_s": dict(self.timings_s),
-                "warnings": list(self.warnings)}
-
-
-def location_name(channels: Mapping[str, float]) -> str:
-    """``A - B`` (``+1`` at A, ``-1`` at B), ``A`` alone, else ``+1 A -1 B ...``."""
-    items = list(channels.items())
-    if len(items) == 1 and items[0][1] == 1:
-        return items[0][0]
-    if len(items) == 2 and sorted(w for _, w in items) == [-1, 1]:
-        a = next(c for c, w in items if w == 1)
-        b = next(c for c, w in items if w == -1)
-        return f"{a} - {b}"
-    return " ".join(f"{w:+g} {c}" for c, w in items)
 
 
 def channel_direction(name: str) -> str | None:
@@ -698,7 +583,7 @@ def _linear_order(data, weighted: bool, max_order: int = 40) -> int:
 
 
 def locate_input(inp, cfg, *, candidates: Any = "all", order: int | None = None,
-                 refine: int = REFINE_TOP, knots: int = REFINE_KNOTS,
+                 refine: int = REFINE_TOP, knots: int = REFINE_KNOTS, form: str = "generic",
                  progress: Callable[[str], None] | None = None) -> Localisation:
     """Where is the structure nonlinear: THE entry point (CLI, API, ``nonlinearities: auto``).
 
@@ -715,6 +600,10 @@ def locate_input(inp, cfg, *, candidates: Any = "all", order: int | None = None,
     refine : int
         The screen's best ``refine`` candidates are re-ranked by a full FNSI with a spline
         of ``knots`` knots at each (0: the screen alone).
+    form : {'generic', 'jenkins'}
+        The restoring force offered at each candidate: the generic columns (screen and
+        refinement), or a Jenkins element ranked by the information criterion
+        (:mod:`ident.locate_stick_slip`; every candidate, about 0.7 s each on 3 channels).
     progress : callable(str), optional
 
     Returns
@@ -741,6 +630,15 @@ def locate_input(inp, cfg, *, candidates: Any = "all", order: int | None = None,
                           channels={c: 1.0 for c in sorted({ch for c in cands for ch in c})})
     session = prepare_session(inp, lin_cfg, motion_for=(reader,))
     data = session.data
+    if form == "jenkins":
+        from fnsi_lab.ident.locate_stick_slip import rank_stick_slip
+
+        ranked = rank_stick_slip(session, cands, progress=progress)
+        ranked.warnings = list(session.warnings)
+        ranked.timings_s["total"] = time.perf_counter() - t0
+        return ranked
+    if form != "generic":
+        raise IdentError(f"form {form!r} is not one of ['generic', 'jenkins']")
     shown = as_displacement_outputs(data)     # D = 0 for the screen's partial fractions
     n = int(order or cfg.order or _linear_order(data, session.weighted))
     t1 = time.perf_counter()

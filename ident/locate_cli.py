@@ -14,6 +14,7 @@ examples:
   fnsi-lab locate test.mcap --config smallsat39 --json where.json
   fnsi-lab locate test.mcap --config ident.yaml --candidates pairs
   fnsi-lab locate data.npz --config ident.yaml --candidates my-candidates.yaml
+  fnsi-lab locate gvt.mcap --config linear.yaml --form jenkins    # a joint that sticks and slips
 
 Candidates: each channel to ground and each pair of channels measured in the same
 direction (names ending -X, _Y, :+Z...; every pair when the names carry none): 'all'
@@ -23,8 +24,11 @@ direction (names ending -X, _Y, :+Z...; every pair when the names carry none): '
 Every candidate gets a generic restoring force (stop-like and polynomial terms in the
 relative displacement, damping and friction terms in the relative velocity); a screen ranks
 them all by how much of the linear model's residual it explains, then the best few are
-re-ranked by a full FNSI with those columns at each (--knots adds a spline). The config's nonlinearities are not
-used (they are the question); its band, inputs, outputs and order are.
+re-ranked by a full FNSI with those columns at each (--knots adds a spline). With --form
+jenkins every candidate gets instead a Jenkins element (a spring in series with a slider:
+friction with memory, which no function of the present motion draws), its slip from the
+data, ranked by the information criterion against the linear model's. The config's
+nonlinearities are not used (they are the question); its band, inputs, outputs and order are.
 """
 
 
@@ -56,6 +60,9 @@ def register(subparsers) -> None:
                    help=f"spline knots added to the refinement's generic columns (default "
                         f"{loc.REFINE_KNOTS}: none; 24 tells nearly equal motions apart better "
                         "on many outputs, at 3x the time)")
+    p.add_argument("--form", choices=("generic", "jenkins"), default="generic",
+                   help="force offered at each candidate: generic columns (default) or a "
+                        "Jenkins element, stick-slip friction (docs/discovery.md)")
     p.add_argument("--top", type=int, default=10, metavar="N",
                    help="candidates printed (default 10; the JSON has them all)")
     p.add_argument("--json", dest="json_out", default=None, metavar="OUT.json",
@@ -69,6 +76,9 @@ def print_ranking(loc, top: int = 10, out=None) -> None:
     """The ranking as text: one line per candidate."""
     out = out or sys.stdout
     t = loc.timings_s
+    if loc.linear_criterion is not None:
+        _print_stick_slip(loc, top, out)
+        return
     print(f"{len(loc.candidates)} candidates, linear model order {loc.order}, "
           f"{'noise-weighted' if loc.weighted else 'unweighted (no noise estimate)'}; "
           f"screen {t.get('screen', 0):.2f} s, FNSI refinement of the best {loc.refined} "
@@ -93,6 +103,32 @@ def print_ranking(loc, top: int = 10, out=None) -> None:
         print(f"  warning: {w}", file=out)
 
 
+def _print_stick_slip(loc, top: int, out) -> None:
+    """``--form jenkins``: one line per candidate, the criterion against the linear model's."""
+    print(f"{len(loc.candidates)} candidates, each with a Jenkins element (slip from the data), "
+          f"ranked by the information criterion (mdl) against the linear model's "
+          f"{loc.linear_criterion:.4g} (order {loc.order}); "
+          f"{loc.timings_s.get('stick_slip', 0):.2f} s", file=out)
+    print(f"  {'rank':>4}  {'location':28s} {'slip':>10s} {'criterion':>10s} {'vs linear':>10s}"
+          "  verdict", file=out)
+    for i, c in enumerate(loc.candidates[:top], 1):
+        crit = (1 - c.score) * loc.linear_criterion
+        slip = f"{c.slip:10.3g}" if c.slip is not None else f"{'-':>10s}"
+        ratio = f"{loc.linear_criterion / crit:9.3g}x" if crit > 0 and c.slip is not None else f"{'-':>10s}"
+        print(f"  {i:4d}  {c.name:28s} {slip} {crit if c.slip is not None else float('nan'):10.4g} "
+              f"{ratio}  {c.verdict}" + (" (slip search refused: see the JSON's note)"
+                                          if c.note else ""), file=out)
+    best = loc.located
+    if best is None:
+        print("no candidate's Jenkins element lowers the information criterion below the "
+              "linear model's", file=out)
+    else:
+        print(f"located: {best.name} (channels {best.channels}); identify it with kind: "
+              f"jenkins, slip: auto there (docs/discovery.md)", file=out)
+    for w in loc.warnings:
+        print(f"  warning: {w}", file=out)
+
+
 def run_locate(args: argparse.Namespace) -> int:
     """Handler of ``fnsi-lab locate``; returns the exit status."""
     import fnsi_lab
@@ -107,7 +143,7 @@ def run_locate(args: argparse.Namespace) -> int:
     progress = (lambda note: print(f"  {note}", file=sys.stderr)) if show else None
     loc = fnsi_lab.locate(args.input, args.config, candidates=args.candidates,
                           order=args.order, refine=args.refine, knots=args.knots,
-                          progress=progress)
+                          form=args.form, progress=progress)
     if show:
         print_ranking(loc, args.top)
     write_json(loc.to_json(), args.json_out, force=True)
