@@ -116,12 +116,12 @@ def _print_stick_slip(loc, top: int, out) -> None:
         slip = f"{c.slip:10.3g}" if c.slip is not None else f"{'-':>10s}"
         ratio = f"{loc.linear_criterion / crit:9.3g}x" if crit > 0 and c.slip is not None else f"{'-':>10s}"
         print(f"  {i:4d}  {c.name:28s} {slip} {crit if c.slip is not None else float('nan'):10.4g} "
-              f"{ratio}  {c.verdict}" + (" (slip search refused: see the JSON's note)"
-                                          if c.note else ""), file=out)
+              f"{ratio}  {c.verdict}" + ("" if not c.note else f" ({c.note})" if c.slip is not None
+                                          else " (slip search refused: see the JSON's note)"),
+              file=out)
     best = loc.located
     if best is None:
-        print("no candidate's Jenkins element lowers the information criterion below the "
-              "linear model's", file=out)
+        print("nothing located (the verdicts and notes above say why)", file=out)
     else:
         print(f"located: {best.name} (channels {best.channels}); identify it with kind: "
               f"jenkins, slip: auto there (docs/discovery.md)", file=out)

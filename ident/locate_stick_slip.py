@@ -18,6 +18,9 @@ read on the odd periods, the outputs on the even ones, an F-test of the weighted
 against the linear model's) finds its Jenkins model significantly better; its ``-log10 p``
 is then the candidate's ``significance``. A candidate whose slip search is refused (the
 joint there barely slips, or slips all the time) is ``not significant`` with the reason.
+That test too located a Jenkins element on the 12 N record (drive - payload, 14x), so
+nothing is located either where the distortion analysis (:mod:`ident.analysis`, ``fnsi-lab
+analyse``) calls every output linear within the noise: there is no distortion to place.
 
 Measured on the aircraft-like GVT (docs/aircraft.md, bench/RESULTS.md): the wing-payload
 pair first at 40, 55, 69 and 98 N, its criterion 7.8x / 2.9x / 1.6x / 1.3x below the linear
@@ -88,6 +91,7 @@ def rank_stick_slip(session, candidates: Sequence[Mapping[str, float]], *,
         except NotIdentifiableError as exc:
             rows_out.append((cand, np.inf, None, 0, str(exc)))
     rows_out.sort(key=lambda r: r[1])
+    linear_record = _linear_within_the_noise(session)
     best = rows_out[0][1] if rows_out else np.inf
     out: list[LocationScore] = []
     for rank, (cand, ic, basis, order, reason) in enumerate(rows_out):
@@ -99,8 +103,11 @@ def rank_stick_slip(session, candidates: Sequence[Mapping[str, float]], *,
             significance = (-np.log10(max(test.p_value, 1e-300)) if test.p_value is not None
                             else float("nan"))
             fstat = float("nan") if test.statistic is None else float(test.statistic)
-            if test.supported:
+            if test.supported and not linear_record:
                 verdict = "located"
+            elif test.supported:
+                reason = ("not located: the distortion analysis calls every output linear "
+                          "within the noise")
             else:
                 reason = f"the nested test on other periods: {test.statement}"
         out.append(LocationScore(
@@ -139,3 +146,17 @@ def _nested(session, basis, order: int, linear_order: int, rows: int) -> NestedT
     return nested_test(model_nl, halves[0], model_lin, halves[1], d_zero=session.d_zero,
                        evaluation="basis columns from the odd periods, outputs and forces "
                                   "from the even ones")
+
+
+def _linear_within_the_noise(session) -> bool:
+    """True when the distortion analysis of the record (``fnsi-lab analyse``) finds no output
+    nonlinear (an analysis that cannot run, e.g. one period, does not veto)."""
+    from fnsi_lab.ident.analysis import analyse_input
+    from fnsi_lab.ident.errors import IdentError as _Error
+
+    try:
+        record = analyse_input(session.input, session.config, keep_spectra=False)
+    except (_Error, ValueError, np.linalg.LinAlgError):
+        return False
+    flags = [o.nonlinear for o in record.outputs]
+    return bool(flags) and all(f is False for f in flags)

@@ -334,3 +334,23 @@ def test_locate_form_jenkins_finds_the_joint(gvt, tmp_path):
     assert 52.6e-6 / 1.5 < best["slip"] < 52.6e-6 * 1.5
     assert len(rest) == 5 and all(c["verdict"] != "located" for c in rest)
     assert doc["linear_criterion"] > 0
+
+
+def test_locate_form_jenkins_places_nothing_on_a_linear_record(tmp_path):
+    """At 12 N the aircraft-like joint never slips: the structure is linear. A Jenkins
+    column still lowers the information criterion somewhere (drive - payload, 14x: it fits
+    what the linear model leaves at the noise level), but the distortion analysis calls every
+    output linear within the noise, so nothing is located."""
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
+    proc = subprocess.run([sys.executable, str(ROOT / "bench" / "aircraft.py"), "--out", "gvt",
+                           "--levels", "12"], cwd=tmp_path, capture_output=True, text=True,
+                          timeout=600, env=env)
+    assert proc.returncode == 0, proc.stderr
+    proc = subprocess.run([sys.executable, "-m", "fnsi_lab", "locate", "gvt/aircraft-rms12.mcap",
+                           "--config", "gvt/aircraft-linear.yaml", "--form", "jenkins",
+                           "--json", "where.json"], cwd=tmp_path, env=env,
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    doc = json.loads((tmp_path / "where.json").read_text())
+    assert all(c["verdict"] != "located" for c in doc["candidates"])
+    assert "nothing located" in proc.stdout
