@@ -15,6 +15,8 @@ index; ``--same-phases`` keeps one seed). The folder also gets:
   ``channels: {wing: 1, payload: -1}`` (Coulomb friction ``tanh(delta'/v0)`` + cubic spring);
 - ``aircraft-jenkins.yaml``: the joint as a Jenkins element (hysteretic friction, a spring in
   series with a slider) with ``slip: auto`` (docs/discovery.md, bolted joints);
+- ``aircraft-jenkins-stop.yaml``: the Jenkins element and a two-sided stop (the joint's
+  clearance), ``slip: auto`` and ``clearances: auto``;
 - ``aircraft-linear.yaml``: the same without nonlinear elements;
 - ``levels.json``: per level the file, commanded/measured force RMS, joint slip, friction
   energy, contact fraction and period-to-period differences (the truth's ``run``).
@@ -66,6 +68,26 @@ nonlinearities:
 max_order: 30
 """
 
+IDENT_JENKINS_STOP = """\
+# Aircraft-like GVT (daq.sim.aircraft): the bolted joint as friction with memory (a Jenkins
+# element) and a clearance (a two-sided stop), all parameters from the data.
+band_hz: [2, 15]
+transient_periods: 1
+output_quantity: acceleration
+inputs:
+  - {name: F-shaker, driving_point: drive}
+nonlinearities:
+  - name: joint
+    kind: jenkins
+    channels: {wing: 1, payload: -1}
+    slip: auto                  # m (F_s / k)
+  - name: gap
+    kind: trilinear
+    channels: {wing: 1, payload: -1}
+    clearances: auto            # m, each side
+max_order: 30
+"""
+
 IDENT_LINEAR = """\
 # Aircraft-like GVT (daq.sim.aircraft): linear identification (no nonlinear element).
 band_hz: [2, 15]
@@ -99,6 +121,7 @@ def write_campaign(out: Path, levels: list[float], *, same_phases: bool = False,
         rows.append({"file": path.name, "level_n_rms": float(level), "phase_seed": exc.seed,
                      **run})
     for name, text in (("aircraft-joint.yaml", IDENT_JOINT), ("aircraft-jenkins.yaml", IDENT_JENKINS),
+                       ("aircraft-jenkins-stop.yaml", IDENT_JENKINS_STOP),
                        ("aircraft-linear.yaml", IDENT_LINEAR)):
         p = out / name
         if p.exists() and not force:

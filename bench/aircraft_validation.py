@@ -5,6 +5,7 @@ Run::
     python bench/aircraft_validation.py                  # 7 levels, about 2-3 minutes
     python bench/aircraft_validation.py --levels 12 55 98
     python bench/aircraft_validation.py --joint joint     # Coulomb + cubic instead of Jenkins
+    python bench/aircraft_validation.py --joint jenkins-stop   # Jenkins + a stop, all auto
 
 Steps (the same entry points as the command line):
 
@@ -20,7 +21,8 @@ Steps (the same entry points as the command line):
    record (the highest level on the one below): per output the error of the nonlinear
    model, of its underlying linear model, and of the linear fit, dB below the output.
 
-Writes ``bench/out/aircraft_validation.json``; the tables go to ``bench/RESULTS.md`` by hand.
+Writes ``bench/out/aircraft_validation.json`` (``-<joint>.json`` for another ``--joint``); the
+tables go to ``bench/RESULTS.md`` by hand.
 """
 
 from __future__ import annotations
@@ -56,8 +58,9 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--levels", type=float, nargs="+", default=list(LEVELS_N_RMS))
     ap.add_argument("--work", type=Path, default=ROOT / "out" / "aircraft-gvt")
-    ap.add_argument("--joint", choices=("jenkins", "joint"), default="jenkins",
-                    help="the nonlinear config: aircraft-jenkins.yaml or aircraft-joint.yaml")
+    ap.add_argument("--joint", choices=("jenkins", "jenkins-stop", "joint"), default="jenkins",
+                    help="the nonlinear config: aircraft-jenkins.yaml, aircraft-jenkins-stop.yaml "
+                         "or aircraft-joint.yaml")
     args = ap.parse_args(argv)
     rows = write_campaign(args.work, args.levels, force=True)
     model = aircraft_model()
@@ -65,12 +68,19 @@ def main(argv: list[str] | None = None) -> int:
     truth = truth[(truth > 2) & (truth < 15)]
     free = np.asarray(model.joint_free_modes_hz())
     free = free[(free > 2) & (free < 15)]
-    answers = {}
+    from fnsi_lab.ident.errors import NotIdentifiableError
+
+    answers, refused = {}, {}
     for row in rows:
         path = args.work / row["file"]
         for kind in ("linear", args.joint):
             t0 = time.perf_counter()
-            res = fnsi_lab.identify(str(path), config=str(args.work / f"aircraft-{kind}.yaml"))
+            try:
+                res = fnsi_lab.identify(str(path), config=str(args.work / f"aircraft-{kind}.yaml"))
+            except NotIdentifiableError as exc:   # a parameter the data cannot tell: the
+                refused[row["level_n_rms"]] = str(exc)   # answer is the linear fit's
+                res = answers[(row["level_n_rms"], "linear")]
+                print(f"{row['level_n_rms']:5g} N {kind}: refused ({exc})", file=sys.stderr)
             answers[(row["level_n_rms"], "linear" if kind == "linear" else "joint")] = res
             print(f"{row['level_n_rms']:5g} N {kind:6s}: order {res.order}, "
                   f"{len(res.modes)} physical modes, {time.perf_counter() - t0:.1f} s",
@@ -82,12 +92,14 @@ def main(argv: list[str] | None = None) -> int:
         other = rows[i + 1] if i + 1 < len(rows) else rows[i - 1]
         lin, nl = answers[(level, "linear")], answers[(level, "joint")]
         entry = {"level_n_rms": level, "validated_on_n_rms": other["level_n_rms"],
+                 "refused": refused.get(level),
                  "linear": {"order": lin.order, "modes": _modes(lin, truth),
                             "damping": {float(m["frequency_hz"]): m["damping_ratio"]
                                         for m in lin.modes}},
                  "nonlinear": {"order": nl.order,
-                               "modes": _modes(nl, free if args.joint == "jenkins" else truth),
-                               "decision": nl.nested.decision if nl.nested else None,
+                               "modes": _modes(nl, free if args.joint != "joint" else truth),
+                               "decision": ("refused" if level in refused else
+                                            nl.nested.decision if nl.nested else None),
                                "slip_m": [e.get("slip") for e in nl.to_json()["nonlinearities"]],
                                "coefficients": [{k: c.get(k) for k in
                                                  ("name", "value", "std_real", "verdict")}
@@ -101,7 +113,8 @@ def main(argv: list[str] | None = None) -> int:
             except Exception as exc:  # noqa: BLE001 - a failed validation is a result here
                 entry[kind]["validation"] = {"error": str(exc)}
         table.append(entry)
-    out = ROOT / "out" / "aircraft_validation.json"
+    out = ROOT / "out" / ("aircraft_validation.json" if args.joint == "jenkins"
+                          else f"aircraft_validation-{args.joint}.json")
     out.parent.mkdir(exist_ok=True)
     from fnsi_lab.outputs import dumps
 
@@ -125,13 +138,13 @@ def main(argv: list[str] | None = None) -> int:
               + f" [{nl['decision']}] slip {nl['slip_m']}"
               + f" | on {e['validated_on_n_rms']:g} N: nl {val(nl, 'error_db')}, "
                 f"its linear {val(nl, 'linear_error_db')}, linear fit {val(lin, 'linear_error_db')}")
-        nl_truth = free if args.joint == "jenkins" else truth
+        nl_truth = free if args.joint != "joint" else truth
         for f0, f1 in zip(truth, nl_truth):
             a, b = lin["modes"].get(float(f0)), nl["modes"].get(float(f1))
             print(f"        {f0:6.2f} / {f1:6.2f} Hz: linear {a if a is None else round(a, 3)}, "
                   f"nonlinear {b if b is None else round(b, 3)}")
     spread = {}
-    for f1 in (free if args.joint == "jenkins" else truth):
+    for f1 in (free if args.joint != "joint" else truth):
         found = [e["nonlinear"]["modes"][float(f1)] for e in table
                  if e["nonlinear"].get("decision") == "nonlinear"
                  and float(f1) in e["nonlinear"]["modes"]]

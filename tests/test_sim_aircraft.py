@@ -159,7 +159,8 @@ def test_acquire_by_name_and_campaign_script(tmp_path):
                  "--levels", "12", "98"], tmp_path)
     assert proc.returncode == 0, proc.stderr
     assert sorted(p.name for p in out.iterdir()) == [
-        "aircraft-jenkins.yaml", "aircraft-joint.yaml", "aircraft-linear.yaml", "aircraft-rms12.mcap",
+        "aircraft-jenkins-stop.yaml", "aircraft-jenkins.yaml", "aircraft-joint.yaml",
+        "aircraft-linear.yaml", "aircraft-rms12.mcap",
         "aircraft-rms98.mcap", "levels.json"]
     rows = json.loads((out / "levels.json").read_text())
     assert rows[1]["slip_m"] > 0 and rows[0]["phase_seed"] != rows[1]["phase_seed"]
