@@ -7,8 +7,9 @@ containers ``FrequencyData``, ``BasisMotion`` and ``data_report``; ``averaging``
 steady state, the averaged output's noise, steady periods chosen by ``steady``;
 ``processed_lines`` band, excited lines with ``excitation``, mains lines with ``noise``, ``z``;
 ``motion`` integration of velocities/accelerations, DC offsets, the motion the basis reads;
-``extended_input`` the basis evaluated on it, ``with_basis``), ``basis`` and ``spline`` (the
-nonlinear basis functions, the extended input), the FNSI decomposition split by job:
+``extended_input`` the basis evaluated on it, ``with_basis``), ``basis``, ``spline`` and
+``hysteresis`` (the nonlinear basis functions, the extended input; ``hysteresis`` the play
+operator of a Jenkins element), the FNSI decomposition split by job:
 ``subspace`` (one QR + one SVD, ``A`` and ``C``; ``folding`` folds stacked realisations
 per line for it), ``bd`` and ``fast_bd`` (``B``, ``D`` by
 least squares), ``weights`` (noise weights), ``models`` (a model of a given order),

@@ -8,7 +8,8 @@ jobs in ``search_space`` (the search spaces and the basis at given values),
 ``motion_noise`` (what the noise in the measured motion adds, and whether to correct it),
 ``search_newton`` (Newton on the continuous parameters, the curvature at the estimate),
 ``search_start`` (the second start from the stops open), ``search_refusal`` (refusals and
-notes) and ``search_result`` (the records); ``output_error`` (the answer refined on the
+notes) and ``search_result`` (the records), and ``slip_search`` (a Jenkins element's slip, with
+any stop's clearances, by the information criterion); ``output_error`` (the answer refined on the
 model's own periodic steady state: whether to refine and how the lines under the band
 enter), with its jobs in ``output_error_problem`` (the modal problem, its Jacobian and
 normal equations), ``output_error_fit`` (the Levenberg-Marquardt loop),
