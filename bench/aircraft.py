@@ -32,14 +32,25 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-IDENT_JOINT = """\
-# Aircraft-like GVT (daq.sim.aircraft): the bolted wing-to-payload joint.
-# Accelerations (m/s^2), measured force (N); relative motion wing - payload.
+#: What every config of the campaign shares: the band, the drive, the outputs' quantity.
+_COMMON = """\
 band_hz: [2, 15]
 transient_periods: 1
 output_quantity: acceleration
 inputs:
   - {name: F-shaker, driving_point: drive}
+"""
+
+
+def _config(comment: str, nonlinearities: str) -> str:
+    """An ident config of the campaign: a comment, the common part, the elements."""
+    return f"{comment}{_COMMON}{nonlinearities}max_order: 30\n"
+
+
+IDENT_JOINT = _config("""\
+# Aircraft-like GVT (daq.sim.aircraft): the bolted wing-to-payload joint.
+# Accelerations (m/s^2), measured force (N); relative motion wing - payload.
+""", """\
 nonlinearities:
   - name: joint-friction
     kind: coulomb
@@ -49,33 +60,23 @@ nonlinearities:
     kind: polynomial
     exponent: 3
     channels: {wing: 1, payload: -1}
-max_order: 30
-"""
+""")
 
-IDENT_JENKINS = """\
+IDENT_JENKINS = _config("""\
 # Aircraft-like GVT (daq.sim.aircraft): the bolted wing-to-payload joint as hysteretic
 # friction (a spring in series with a slider; the slip displacement from the data).
-band_hz: [2, 15]
-transient_periods: 1
-output_quantity: acceleration
-inputs:
-  - {name: F-shaker, driving_point: drive}
+""", """\
 nonlinearities:
   - name: joint
     kind: jenkins
     channels: {wing: 1, payload: -1}
     slip: auto                  # m (F_s / k), by the information criterion
-max_order: 30
-"""
+""")
 
-IDENT_JENKINS_STOP = """\
+IDENT_JENKINS_STOP = _config("""\
 # Aircraft-like GVT (daq.sim.aircraft): the bolted joint as friction with memory (a Jenkins
 # element) and a clearance (a two-sided stop), all parameters from the data.
-band_hz: [2, 15]
-transient_periods: 1
-output_quantity: acceleration
-inputs:
-  - {name: F-shaker, driving_point: drive}
+""", """\
 nonlinearities:
   - name: joint
     kind: jenkins
@@ -85,19 +86,11 @@ nonlinearities:
     kind: trilinear
     channels: {wing: 1, payload: -1}
     clearances: auto            # m, each side
-max_order: 30
-"""
+""")
 
-IDENT_LINEAR = """\
+IDENT_LINEAR = _config("""\
 # Aircraft-like GVT (daq.sim.aircraft): linear identification (no nonlinear element).
-band_hz: [2, 15]
-transient_periods: 1
-output_quantity: acceleration
-inputs:
-  - {name: F-shaker, driving_point: drive}
-nonlinearities: []
-max_order: 30
-"""
+""", "nonlinearities: []\n")
 
 
 def write_campaign(out: Path, levels: list[float], *, same_phases: bool = False,

@@ -92,7 +92,6 @@ def rank_stick_slip(session, candidates: Sequence[Mapping[str, float]], *,
         except NotIdentifiableError as exc:
             rows_out.append((cand, np.inf, None, 0, str(exc)))
     rows_out.sort(key=lambda r: r[1])
-    linear_record = _linear_within_the_noise(session)
     best = rows_out[0][1] if rows_out else np.inf
     out: list[LocationScore] = []
     for rank, (cand, ic, basis, order, reason) in enumerate(rows_out):
@@ -104,6 +103,7 @@ def rank_stick_slip(session, candidates: Sequence[Mapping[str, float]], *,
             significance = (-np.log10(max(test.p_value, 1e-300)) if test.p_value is not None
                             else float("nan"))
             fstat = float("nan") if test.statistic is None else float(test.statistic)
+            linear_record = test.supported and _linear_within_the_noise(session)
             if test.supported and not linear_record:
                 verdict = "located"
             elif test.supported:

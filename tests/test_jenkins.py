@@ -100,16 +100,21 @@ def test_config_and_element():
     assert nl.hysteretic and nl.coefficient_names == ("joint",)
 
 
+def _campaign(folder: Path, *levels: str) -> Path:
+    """The aircraft-like GVT at these levels (N RMS), written by bench/aircraft.py (the real
+    acquisition entry point) with its configs into ``folder/gvt``."""
+    proc = subprocess.run([sys.executable, str(ROOT / "bench" / "aircraft.py"), "--out", "gvt",
+                           "--levels", *levels], cwd=folder, capture_output=True, text=True,
+                          timeout=600, env=dict(os.environ, OPENBLAS_NUM_THREADS="1"))
+    assert proc.returncode == 0, proc.stderr
+    return folder / "gvt"
+
+
 @pytest.fixture(scope="module")
 def gvt(tmp_path_factory):
     """The aircraft-like GVT at 55 N (joint slipping 18 % of the time) and 84 N, written by
     bench/aircraft.py (the real acquisition entry point) with its configs."""
-    folder = tmp_path_factory.mktemp("gvt")
-    proc = subprocess.run([sys.executable, str(ROOT / "bench" / "aircraft.py"), "--out", "gvt",
-                           "--levels", "55", "84"], cwd=folder, capture_output=True, text=True,
-                          timeout=600, env=dict(os.environ, OPENBLAS_NUM_THREADS="1"))
-    assert proc.returncode == 0, proc.stderr
-    return folder / "gvt"
+    return _campaign(tmp_path_factory.mktemp("gvt"), "55", "84")
 
 
 def test_slip_auto_on_the_aircraft_joint(gvt):
@@ -342,10 +347,7 @@ def test_locate_form_jenkins_places_nothing_on_a_linear_record(tmp_path):
     what the linear model leaves at the noise level), but the distortion analysis calls every
     output linear within the noise, so nothing is located."""
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
-    proc = subprocess.run([sys.executable, str(ROOT / "bench" / "aircraft.py"), "--out", "gvt",
-                           "--levels", "12"], cwd=tmp_path, capture_output=True, text=True,
-                          timeout=600, env=env)
-    assert proc.returncode == 0, proc.stderr
+    _campaign(tmp_path, "12")
     proc = subprocess.run([sys.executable, "-m", "fnsi_lab", "locate", "gvt/aircraft-rms12.mcap",
                            "--config", "gvt/aircraft-linear.yaml", "--form", "jenkins",
                            "--json", "where.json"], cwd=tmp_path, env=env,
@@ -366,10 +368,7 @@ def test_friction_and_clearance_from_the_data(tmp_path):
     (-20 % on both realisations: that side is the one the settling preload's slip also
     shifts, a part of the joint no element here holds)."""
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
-    proc = subprocess.run([sys.executable, str(ROOT / "bench" / "aircraft.py"), "--out", "gvt",
-                           "--levels", "98"], cwd=tmp_path, capture_output=True, text=True,
-                          timeout=600, env=env)
-    assert proc.returncode == 0, proc.stderr
+    _campaign(tmp_path, "98")
     proc = subprocess.run([sys.executable, "-m", "fnsi_lab", "ident", "gvt/aircraft-rms98.mcap",
                            "--config", "gvt/aircraft-jenkins-stop.yaml", "--auto", "--json",
                            "r.json", "--quiet"], cwd=tmp_path, env=env, capture_output=True,

@@ -314,16 +314,16 @@ class HarmonicBalance:
             x = {}
             for a in range(self.s):
                 key = (self.column_element[a], self.column_velocity[a])
-                if key not in x:   # the argument's perturbation on the grid, once per element
-                    w = 1j * self.omega_lines[:, None] if key[1] else 1.0
-                    spec[self.K] = d_delta[r, :, key[0], :] * (w * self.Nc)
-                    x[key] = sfft.irfft(spec, n=self.Nc, axis=0)
                 anchors = (state.linearisation.anchors or {}).get(a)
-                if anchors is not None:
+                if anchors is not None:   # its own grid: no convolution-grid signal needed
                     grid = self.Nc if coarse else self.Nf
                     out[r, :, a, :] = self._hysteretic_response(
                         anchors[grid][r], d_delta[r, :, key[0], :], grid)
                     continue
+                if key not in x:   # the argument's perturbation on the grid, once per element
+                    w = 1j * self.omega_lines[:, None] if key[1] else 1.0
+                    spec[self.K] = d_delta[r, :, key[0], :] * (w * self.Nc)
+                    x[key] = sfft.irfft(spec, n=self.Nc, axis=0)
                 prod = slopes_t[r, :, a, None] * x[key]
                 out[r, :, a, :] = sfft.rfft(prod, axis=0)[self.K] / self.Nc
         return out

@@ -377,6 +377,18 @@ def output_weights(Y, scaling: str = "rms", noise_cov=None):
     return 1.0 / np.where(r > 0, r, np.inf)
 
 
+def _weighted_residues(c_hat, b_hat, weights, out_weights) -> tuple[np.ndarray, np.ndarray]:
+    """``C Phi`` scaled by the output weights per row, ``Phi^-1 B`` by the input weights per
+    column (None: unweighted)."""
+    c_hat = np.asarray(c_hat, dtype=complex)
+    b_hat = np.asarray(b_hat, dtype=complex)
+    if weights is not None:
+        b_hat = b_hat * np.asarray(weights, dtype=float)[None, :]
+    if out_weights is not None:
+        c_hat = c_hat * np.asarray(out_weights, dtype=float)[:, None]
+    return c_hat, b_hat
+
+
 def modal_dominancy(lam, c_hat, b_hat, band_hz, *, norm: MdiNorm = "h2", weights=None,
                     nyquist_hz: float | None = None, out_weights=None) -> ModalDominancy:
     """Modal dominancy index of every mode of a CT model in modal form.
@@ -412,12 +424,7 @@ def modal_dominancy(lam, c_hat, b_hat, band_hz, *, norm: MdiNorm = "h2", weights
     f1, f2 = float(band_hz[0]), float(band_hz[1])
     band = _band((2 * np.pi * f1, 2 * np.pi * f2))
     lam = np.asarray(lam, dtype=complex).ravel()
-    c_hat = np.asarray(c_hat, dtype=complex)
-    b_hat = np.asarray(b_hat, dtype=complex)
-    if weights is not None:
-        b_hat = b_hat * np.asarray(weights, dtype=float)[None, :]
-    if out_weights is not None:
-        c_hat = c_hat * np.asarray(out_weights, dtype=float)[:, None]
+    c_hat, b_hat = _weighted_residues(c_hat, b_hat, weights, out_weights)
     units = _pair_up(lam)
     rep = np.array([lam[u[0]] for u in units], dtype=complex)
     is_pair = np.array([len(u) == 2 for u in units], bool)
@@ -490,12 +497,7 @@ def group_split_modes(md: ModalDominancy, lam, c_hat, b_hat, *, weights=None, ou
         return i
 
     lam = np.asarray(lam, dtype=complex)
-    c_hat = np.asarray(c_hat, dtype=complex)
-    b_hat = np.asarray(b_hat, dtype=complex)
-    if weights is not None:
-        b_hat = b_hat * np.asarray(weights, dtype=float)[None, :]
-    if out_weights is not None:
-        c_hat = c_hat * np.asarray(out_weights, dtype=float)[:, None]
+    c_hat, b_hat = _weighted_residues(c_hat, b_hat, weights, out_weights)
     band = (2 * np.pi * md.band_hz[0], 2 * np.pi * md.band_hz[1])
     h2 = md.values["h2"]
 
