@@ -86,7 +86,8 @@ def _print_summary(res: dict, out=None) -> None:
     print(f"order {res['order']} (block rows {res['block_rows']}, "
           f"{'weighted' if res['weighted'] else 'unweighted'}, {res['n_lines']} lines, "
           f"relative model error {res['relative_model_error']:.3g})", file=out)
-    if (res.get("nonlinear_vs_linear") or {}).get("decision") == "linear":
+    nvl = res.get("nonlinear_vs_linear") or {}
+    if nvl.get("decision") == "linear" and nvl.get("linear_modes") is not None:
         print("  poles of the nonlinear model (not the answer: its modes are the linear fit's, "
               "see 'nonlinear vs linear' below):", file=out)
     for i, pl in enumerate(res["poles"], 1):

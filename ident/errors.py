@@ -26,7 +26,18 @@ class NotIdentifiableError(IdentError):
     """The requested quantity is not available from this measurement set-up.
 
     Example: the nonlinear coefficient needs the driving-point output (docs/method.md §2.3).
+
+    Parameters
+    ----------
+    message : str
+        One line: what cannot be told, why, and the fix.
+    element : str, optional
+        The basis element the refusal is about (a parameter search's), else None.
     """
+
+    def __init__(self, message: str, *, element: str | None = None) -> None:
+        super().__init__(message)
+        self.element = element
 
 
 class NoExcitedLineError(IdentError, WorkFailedError):

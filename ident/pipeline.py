@@ -117,9 +117,10 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
         cfg, located = with_located_element(
             inp, cfg, progress=(lambda note: None) if progress else None)
     # without any order given, the criterion picks the search's (at most search_order)
+    # a basis parameter the data cannot tell leaves its element out: at worst the linear answer
     session = prepare_session(inp, cfg, search_order=search_order,
                               select_search_order=order is None and cfg.order is None,
-                              progress=progress)
+                              progress=progress, refused_as_linear=True)
     if located is not None:
         session.evidence["localisation"] = located.to_json()
     fit = fit_session(session, order=order, sweep=sweep, reduce_at=reduce_at,
@@ -139,6 +140,7 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
             from fnsi_lab.ident.robust.nested import weighted_residual
 
             session.evidence["nonlinear_vs_linear"] = {
+                **session.evidence.get("nonlinear_vs_linear", {}),   # elements left out
                 "decision": "nonlinear", "test": None,
                 "residual_nonlinear": weighted_residual(model, session.data),
                 "residual_linear": None, "statistic": None, "p_value": None,

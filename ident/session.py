@@ -18,7 +18,8 @@ import numpy as np
 
 from fnsi_lab.ident.core.basis import Nonlinearity
 from fnsi_lab.ident.config import IdentConfig
-from fnsi_lab.ident.errors import IdentError, IdentWarning, NoExcitedLineError
+from fnsi_lab.ident.errors import (IdentError, IdentWarning, NoExcitedLineError,
+                                   NotIdentifiableError)
 from fnsi_lab.ident.core.io import IdentInput, select_channels
 from fnsi_lab.ident.refine.parameter_search import (DEFAULT_SEARCH_ORDER, ParameterSearchResult,
                                              estimate_basis_parameters, has_unknown_parameters)
@@ -26,7 +27,8 @@ from fnsi_lab.ident.core.periodic import FrequencyData, prepare_frequency_data, 
 from fnsi_lab.ident.core.spline import needs_knots, resolve_knots
 from fnsi_lab.progress import Progress
 
-__all__ = ["IdentSession", "prepare_session", "apply_recording_truth", "no_excited_line"]
+__all__ = ["IdentSession", "prepare_session", "apply_recording_truth", "no_excited_line",
+           "refused_search_evidence"]
 
 
 @dataclass
@@ -106,7 +108,8 @@ def apply_recording_truth(cfg: IdentConfig, truth: Mapping | None) -> tuple[Iden
 def prepare_session(inp: IdentInput, cfg: IdentConfig, *, search_order: int | None = None,
                     select_search_order: bool = False, progress: Any = None,
                     motion_for: Sequence[Nonlinearity] = (),
-                    basis_oversample: int | None = None) -> IdentSession:
+                    basis_oversample: int | None = None,
+                    refused_as_linear: bool = False) -> IdentSession:
     """Select the configured channels and build the frequency data.
 
     Basis parameters left to the data (``clearances: auto``, ``exponent: auto``...) are
@@ -118,10 +121,18 @@ def prepare_session(inp: IdentInput, cfg: IdentConfig, *, search_order: int | No
     (:mod:`ident.locate` evaluates candidate locations on it); ``basis_oversample``
     overrides the config's.
 
+    When the data cannot tell those parameters (the search refuses,
+    :class:`ident.errors.NotIdentifiableError`), ``refused_as_linear`` leaves the elements
+    with unknown parameters out instead of raising: the session is then the linear one (or
+    keeps the fully given elements), and ``evidence["nonlinear_vs_linear"]`` says which
+    elements were left out and why (docs/ident.md, "When the data cannot tell").
+
     Raises
     ------
     IdentError
         Channels missing, band outside the data, too few periods, ... (one line each).
+    NotIdentifiableError
+        A basis parameter the data cannot tell (without ``refused_as_linear``).
     """
     t0 = time.perf_counter()
     inp = select_channels(inp, outputs=cfg.outputs, inputs=[i.name for i in cfg.inputs] or None)
@@ -174,20 +185,28 @@ def prepare_session(inp: IdentInput, cfg: IdentConfig, *, search_order: int | No
             data = with_basis(data, cfg.nonlinearities)
     timings = {"prepare": time.perf_counter() - t0}
     search = None
+    evidence: dict[str, Any] = {}
+    left_out: list[str] = []   # elements the data cannot tell, when others are kept
     if unknown:  # the one place where 'auto' basis parameters become numbers
         t1 = time.perf_counter()
         bar = Progress(2, "basis parameters", enabled=bool(progress))
-        search = estimate_basis_parameters(
-            data, cfg.nonlinearities, order=int(search_order or cfg.order or DEFAULT_SEARCH_ORDER),
-            d_zero=cfg.d_zero_for(quantity), weighted=weighted, select_order=select_search_order,
-            progress=lambda note: bar.update(1, note=note))
-        cfg = replace(cfg, nonlinearities=search.basis)
-        data = with_basis(data, search.basis)
+        search, kept, refusals = _search_or_leave_out(
+            data, cfg.nonlinearities, leave_out=refused_as_linear,
+            order=int(search_order or cfg.order or DEFAULT_SEARCH_ORDER),
+            d_zero=cfg.d_zero_for(quantity), weighted=weighted,
+            select_order=select_search_order, progress=lambda note: bar.update(1, note=note))
+        if refusals:
+            evidence["nonlinear_vs_linear"] = refused_search_evidence(
+                cfg.nonlinearities, kept, refusals)
+            if kept:   # else the statement is the answer's own line
+                left_out.append(evidence["nonlinear_vs_linear"]["statement"])
+        cfg = replace(cfg, nonlinearities=kept)
+        data = with_basis(data, kept)
         timings["parameter_search"] = time.perf_counter() - t1
     return IdentSession(config=cfg, input=inp, data=data, weighted=weighted,
                         d_zero=cfg.d_zero_for(quantity), parameter_search=search,
-                        timings_s=timings,
-                        warnings=list(inp.notes) + truth_notes
+                        timings_s=timings, evidence=evidence,
+                        warnings=list(inp.notes) + truth_notes + left_out
                         + [str(w.message) for w in caught]
                         + (list(search.warnings) if search is not None else []))
 
@@ -202,3 +221,70 @@ def no_excited_line(data: FrequencyData) -> str:
         where = f"; the excitation's {exc.get('n_excited')} lines lie in {a:.4g}-{b:.4g} Hz"
     return (f"no excited line in the processed band {lo:g}-{hi:g} Hz{where} "
             "(fix: an ident config band_hz that covers them)")
+
+
+def _search_or_leave_out(data: FrequencyData, nonlinearities: Sequence[Nonlinearity], *,
+                         leave_out: bool, **search: Any
+                         ) -> tuple[ParameterSearchResult | None, tuple[Nonlinearity, ...],
+                                    list[tuple[str, str]]]:
+    """The parameter search; with ``leave_out``, an element the data cannot tell is left out
+    and the search is run again on the others (a stop never touched at a low level leaves
+    the friction element beside it to be searched alone).
+
+    Returns
+    -------
+    search : ParameterSearchResult or None
+        The last search, None when no element with unknown parameters is left.
+    basis : tuple of Nonlinearity
+        The elements kept, their parameters estimated.
+    refusals : list of (element name, reason)
+        One per element left out (every element with unknown parameters, when a refusal
+        does not name one).
+    """
+    pending = tuple(nonlinearities)
+    refusals: list[tuple[str, str]] = []
+    while has_unknown_parameters(pending):
+        try:
+            found = estimate_basis_parameters(data, pending, **search)
+            return found, tuple(found.basis), refusals
+        except NotIdentifiableError as refusal:
+            if not leave_out:
+                raise
+            unknown = [nl.name for nl in pending if nl.unknown]
+            drop = [refusal.element] if refusal.element in unknown else unknown
+            refusals += [(name, str(refusal)) for name in drop]
+            pending = tuple(nl for nl in pending if nl.name not in drop)
+    return None, pending, refusals
+
+
+def refused_search_evidence(requested: Sequence[Nonlinearity], kept: Sequence[Nonlinearity],
+                            refusals: Sequence[tuple[str, str]]) -> dict[str, Any]:
+    """The answer's ``nonlinear_vs_linear`` when the parameter search refused: which
+    elements were left out and why, in the nested test's keys (docs/ident.md).
+
+    Parameters
+    ----------
+    requested : sequence of Nonlinearity
+        The configured elements.
+    kept : sequence of Nonlinearity
+        Those identified all the same.
+    refusals : sequence of (element name, reason)
+        The search's refusal of each element left out, one line each.
+    """
+    reasons = dict(refusals)
+    left_out = [nl for nl in requested if nl.name in reasons]
+    names = ", ".join(repr(nl.name) for nl in left_out)
+    rest = (f"the answer keeps {', '.join(repr(nl.name) for nl in kept)}"
+            if kept else "the answer is the linear fit")
+    out: dict[str, Any] = {
+        "test": "parameter search", "decision": "linear" if not kept else None,
+        "statement": (f"not identifiable from these data: "
+                      f"{'; '.join(dict.fromkeys(reasons.values()))}; "
+                      f"{names} left out, {rest}"),
+        "refused": [{"name": nl.name, "kind": nl.kind, "channels": dict(nl.channels),
+                     "parameters": [u.parameter for u in nl.unknown], "reason": reasons[nl.name]}
+                    for nl in left_out]}
+    if not kept:
+        out.update(residual_nonlinear=None, residual_linear=None, statistic=None, p_value=None,
+                   linear_modes=None)
+    return out

@@ -512,21 +512,43 @@ def test_cli_prints_the_estimates_and_json_holds_them(tmp_path, chain_stop, caps
     assert all(abs(c["error_percent"]) < 0.1 for c in res["coefficients"])
 
 
-def test_refusal_is_one_line_exit_2(tmp_path, capsys):
+@pytest.mark.parametrize("keep_cubic", [False, True])
+def test_a_refused_search_gives_the_linear_answer_and_says_why(tmp_path, capsys, keep_cubic):
+    """Issue 29: the data cannot tell a stop's gap (a linear chain: never in contact). The
+    answer is not an error but the linear fit (or keeps the fully given element), with the
+    refusal in one line and in the JSON (nonlinear_vs_linear.refused)."""
     import yaml
     from fnsi_lab.cli import main
 
     model = sim.lumped_model("none")
     u, y = _simulate(model)
+    stop = {"name": "stop", "kind": "trilinear", "channels": {"X2": 1, "X3": -1},
+            "clearances": [[0.05, 0.1], "auto"]}
+    cubic = {"name": "cubic", "kind": "polynomial", "channels": {"X3": 1}, "exponent": 3}
     cfg = {"band_hz": list(BAND), "transient_periods": 1, "order": 6,
            "inputs": [{"name": model.input_names[0], "driving_point": "X3"}],
-           "nonlinearities": [{"name": "stop", "kind": "trilinear", "channels": {"X2": 1, "X3": -1},
-                               "clearances": [[0.05, 0.1], "auto"]}]}
+           "nonlinearities": [stop] + ([cubic] if keep_cubic else [])}
     (tmp_path / "c.yaml").write_text(yaml.safe_dump(cfg))
-    code = main(["ident", str(_npz(tmp_path, model, u, y)), "--config", str(tmp_path / "c.yaml")])
-    err = capsys.readouterr().err.strip().splitlines()
-    assert code == 2 and len(err) == 1
-    assert "'stop'" in err[0] and "g_neg" in err[0] and "never in contact" in err[0]
+    out = tmp_path / "r.json"
+    code = main(["ident", str(_npz(tmp_path, model, u, y)), "--config", str(tmp_path / "c.yaml"),
+                 "--json", str(out)])
+    text = capsys.readouterr().out
+    assert code == 0
+    res = json.loads(out.read_text())
+    nvl = res["nonlinear_vs_linear"]
+    (refused,) = nvl["refused"]
+    assert refused["name"] == "stop" and refused["parameters"] == ["g_neg", "g_pos"]
+    assert "never in contact" in refused["reason"]
+    assert [nl["name"] for nl in res["nonlinearities"]] == (["cubic"] if keep_cubic else [])
+    # the chain's three modes, from the linear (or linear + cubic) model of order 6
+    assert len(res["modes"]) == 3
+    if keep_cubic:   # the given cubic is tested as usual; the refusal is a warning
+        assert nvl["test"].startswith("F-test")
+        assert any("'stop' left out" in w for w in res["warnings"])
+    else:
+        assert nvl["decision"] == "linear" and res["coefficients"] == []
+        line = next(ln for ln in text.splitlines() if ln.startswith("nonlinear vs linear:"))
+        assert "never in contact" in line and "the answer is the linear fit" in line
 
 
 def test_viewer_logs_the_objective(tmp_path):

@@ -200,7 +200,8 @@ def estimate_basis_parameters(data: FrequencyData, basis: Sequence[Nonlinearity]
     if select_order and restarted is not None:
         # the order came from the criterion, which wanders while the basis is wrong
         raise NotIdentifiableError(f"{refusal}; or give the structure's model order "
-                                   "(order: in the configuration, --order)") from None
+                                   "(order: in the configuration, --order)",
+                                   element=getattr(refusal, "element", None)) from None
     raise refusal
 
 def _search(data: FrequencyData, basis: Sequence[Nonlinearity], *, order: int, d_zero: bool,

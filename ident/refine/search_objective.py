@@ -163,7 +163,7 @@ class SearchObjective:
             grid, vs = out[k] = self.scan(k, u, vals)
             if np.all(~np.isfinite(vs)):
                 raise NotIdentifiableError(f"nonlinearity {u.name!r}: no candidate "
-                                           f"{u.parameter} gives a model on these data")
+                                           f"{u.parameter} gives a model on these data", element=u.name)
             vals[k] = (_scan_minimum(grid, vs, log=u.log_spaced) if u.continuous
                        else grid[int(np.argmin(vs))])
         return vals, out

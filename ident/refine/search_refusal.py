@@ -72,29 +72,29 @@ def refuse_if_unclear(est: ParameterEstimate, nl: Nonlinearity, max_relative_std
             raise NotIdentifiableError(
                 f"{what}: the model error is smallest at the edge of the search interval "
                 f"[{lo:.4g}, {hi:.4g}] ({est.value:.4g}), so the value is outside it or the "
-                f"element barely acts; {fix}")
+                f"element barely acts; {fix}", element=nl.name)
         if not est.std <= max_relative_std * u.magnitude(est.value):
             of = "the smaller clearance" if u.scale else "the value"
             raise NotIdentifiableError(
                 f"{what}: the model error is flat around {est.value:.4g} (std {est.std:.3g}, "
-                f"more than {100 * max_relative_std:g} % of {of}); {fix}")
+                f"more than {100 * max_relative_std:g} % of {of}); {fix}", element=nl.name)
         if not est.margin >= min_margin:
             # an end of the interval fits about as well: no single minimum (5-DOF chain seen
             # by 2 outputs at 40 dB: the model error jumped by 10^4 between scan points)
             raise NotIdentifiableError(
                 f"{what}: the ends of the search interval fit about as well as "
                 f"{est.value:.4g} (chi-square difference {est.margin:.3g} < {min_margin:g}); "
-                f"{fix}")
+                f"{fix}", element=nl.name)
         if est.roughness > MAX_ROUGHNESS:
             # the minimum is a lucky low point of a rough objective, not a smooth valley
             raise NotIdentifiableError(
                 f"{what}: the model error around {est.value:.4g} is rough (a few percent "
                 f"away it changes {est.roughness:.3g}x more or less than its curvature says: "
-                f"few outputs for the model order, or an unmodelled effect); {fix}")
+                f"few outputs for the model order, or an unmodelled effect); {fix}", element=nl.name)
     elif not est.margin >= min_margin:
         raise NotIdentifiableError(
             f"{what}: {est.value:g} fits no better than the next candidate (chi-square "
-            f"difference {est.margin:.3g} < {min_margin:g}); {fix}")
+            f"difference {est.margin:.3g} < {min_margin:g}); {fix}", element=nl.name)
 
 def search_notes(estimates: Sequence[ParameterEstimate], data: FrequencyData, quantity: str,
                  corrected: bool, misfit: float) -> tuple[list[str], list[str]]:

@@ -164,7 +164,7 @@ def search_spaces(data: FrequencyData, basis: Sequence[Nonlinearity]) -> list[Un
                     f"largest excursion towards the {side} stop is {reach:.4g}, "
                     f"{'below' if sp.interval is not None else 'not beyond'} the search "
                     f"interval [{lo:.4g}, {hi:.4g}] (the stop is never in contact; excite "
-                    "harder, or give the clearance or drop the element)")
+                    "harder, or give the clearance or drop the element)", element=nl.name)
             out.append(Unknown(i, nl.name, sp.parameter,
                                interval=(float(lo), float(min(hi, reach))), reach=reach))
     return out
@@ -187,7 +187,7 @@ def _slip_space(element: int, nl: Nonlinearity, interval: tuple[float, float] | 
             f"nonlinearity {nl.name!r}: the data cannot tell slip: the recorded relative "
             f"motion's half peak-to-peak is {half_span:.4g}, not beyond the search interval "
             f"[{lo:.4g}, {hi:.4g}] (the joint never slips there; excite harder, give the "
-            "slip or drop the element)")
+            "slip or drop the element)", element=nl.name)
     return Unknown(element, nl.name, "slip", interval=(float(lo), float(min(hi, half_span))))
 
 
@@ -215,7 +215,7 @@ def _offset_space(element: int, nl: Nonlinearity, interval: tuple[float, float] 
                 f"nonlinearity {nl.name!r}: the data cannot tell offset: the recorded relative "
                 f"motion spans {span:.4g}, too little for both stops (clearances "
                 f"{g_neg:.4g}, {g_pos:.4g}) to be touched from a position between them; give "
-                "the offset, a search interval [low, high] for it, or excite harder")
+                "the offset, a search interval [low, high] for it, or excite harder", element=nl.name)
         width = hi - lo
         interval = (lo + AUTO_CLEARANCE_FRACTION[0] * width, lo + AUTO_CLEARANCE_FRACTION[1] * width)
     positive = [g for g in (g_neg, g_pos) if g > 0]

@@ -181,14 +181,14 @@ def _estimate(u: Unknown, value: float, points: np.ndarray, objective: np.ndarra
             f"criterion is smallest at the top of the search interval [{lo:.4g}, {hi:.4g}], "
             + ("where the joint barely slips (a linear spring: the underlying linear model "
                "holds it)" if slip else "where the stop is barely touched")
-            + "; excite harder, or drop the element")
+            + "; excite harder, or drop the element", element=u.name)
     if value <= lo * np.sqrt(step):
         raise NotIdentifiableError(
             f"nonlinearity {u.name!r}: the data cannot tell {u.parameter}: the information "
             f"criterion is smallest at the bottom of the search interval [{lo:.4g}, {hi:.4g}] "
             + ("(the joint slips nearly all the time: try kind: coulomb, or a search interval "
                "reaching lower)" if slip else "(the stop is in contact nearly all the time: a "
-               "linear spring)"))
+               "linear spring)"), element=u.name)
     # inf: the criterion has no opinion there (no stable order): NaN, as the JSON's null
     return ParameterEstimate(u, float(value), float("nan"), points,
                              np.where(np.isfinite(objective), objective, np.nan),
