@@ -159,9 +159,8 @@ def validate_model(result: Any, record: Any, *, method: str = "auto",
     """
     from fnsi_lab.ident.core.io import IdentInput, select_channels
     from fnsi_lab.ident.core.model_json import basis_from_json, model_from_json
-    from fnsi_lab.ident.core.periodic import prepare_frequency_data
-    from fnsi_lab.ident.refine.validation import (balance_outputs, output_errors, prediction_band,
-                                           time_outputs)
+    from fnsi_lab.ident.refine.validation import (balance_outputs, output_errors, prediction_data,
+                                                  time_outputs)
     from fnsi_lab.inputs import load_input
 
     if method not in ("auto", "balance", "time"):
@@ -236,19 +235,9 @@ def validate_model(result: Any, record: Any, *, method: str = "auto",
 
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", IdentWarning)
-            data = prepare_frequency_data(
-                u=inp.u, y=inp.y, sample_rate_hz=inp.sample_rate_hz,
-                samples_per_period=inp.samples_per_period, basis=basis,
-                band_hz=prediction_band(band, inp.sample_rate_hz, inp.samples_per_period,
-                                        quantity),
-                transient_periods=transient, output_quantity=quantity,
-                output_names=inp.output_channels, input_names=inp.input_channels,
-                excited_lines=inp.excited_lines, highpass_hz=proc.get("highpass_hz"),
-                steady_state_tolerance=float(proc.get("steady_state_tolerance", 0.05)),
-                steady_periods=str(proc.get("steady_periods", "auto")),
-                time_base=model.time_base, bilinear_period_s=model.bilinear_period_s,
-                basis_oversample=int(proc.get("basis_oversample", 8)),
-                integration_min_snr=proc.get("integration_min_snr", 4.0))
+            data = prediction_data(inp, basis, band, quantity, proc,
+                                   transient_periods=transient, time_base=model.time_base,
+                                   bilinear_period_s=model.bilinear_period_s)
         notes += [str(w.message) for w in caught]
         sim = balance_outputs(model, basis, data, band)
         fit_lines = None if fit is None else balance_outputs(fit, (), data, band).linear

@@ -47,6 +47,37 @@ def test_supported_cubic_keeps_its_answer():
     assert [m["frequency_hz"] for m in r.modes] != [m["frequency_hz"] for m in r.nested.linear.modes]
     assert r.coefficients[0]["verdict"] == "identified"
     assert abs(r.coefficients[0]["value"] / 1e9 - 1) < 0.01
+    # simulated on its own record with its own motion, it predicts every output better
+    # than the linear fit (1 % noise: far below the cubic's distortion)
+    sim = nvl["simulation"]
+    assert sim["converged"] and sim["worse"] == [] and len(sim["outputs"]) == 3
+    assert all(o["error_db"] < o["linear_fit_error_db"] - 10 for o in sim["outputs"])
+
+
+def test_a_model_that_simulates_worse_than_the_linear_fit_is_not_the_answer():
+    """The F-test reads the measured motion in the basis; the simulation check reads the
+    model's own. A supported test whose model predicts some output worse, or reaches no
+    steady state, becomes ``linear`` and says which output and by how much."""
+    from fnsi_lab.ident.robust.nested import NestedTest
+
+    test = NestedTest(residual_nonlinear=1.0, residual_linear=2.0, parameters_nonlinear=20,
+                      parameters_linear=10, n_observations=1000, statistic=50.0, p_value=1e-9,
+                      decision="nonlinear", order_nonlinear=6, order_linear=6,
+                      weighting="noise")
+    rows = [{"name": "wing", "error_db": -12.0, "linear_fit_error_db": -11.0},
+            {"name": "payload", "error_db": -4.8, "linear_fit_error_db": -7.3}]
+    better = test.require_simulation({"converged": True, "outputs": rows[:1], "worse": []})
+    assert better.supported and better.to_dict()["simulation"]["worse"] == []
+    worse = test.require_simulation({"converged": True, "outputs": rows, "worse": ["payload"]})
+    assert not worse.supported and worse.decision == "linear"
+    assert "payload worse than the linear fit (-4.8 dB against -7.3 dB)" in worse.statement
+    stuck = test.require_simulation({"converged": False, "reason": "did not converge",
+                                     "outputs": [], "worse": []})
+    assert not stuck.supported and "no periodic steady state" in stuck.statement
+    # an unsupported test stays unsupported, its own statement unchanged
+    plain = NestedTest(**{**test.__dict__, "decision": "linear", "p_value": 0.5})
+    assert plain.require_simulation({"converged": True, "outputs": rows,
+                                     "worse": ["payload"]}).statement == plain.statement
 
 
 @pytest.mark.parametrize("seed", [0, 1])

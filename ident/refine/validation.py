@@ -26,7 +26,7 @@ lines), like :class:`ident.core.periodic.FrequencyData`.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -37,8 +37,8 @@ from fnsi_lab.ident.refine.harmonic_balance import BalanceError, HarmonicBalance
 from fnsi_lab.ident.refine.modal import ModalModel
 from fnsi_lab.ident.core.periodic import FrequencyData
 
-__all__ = ["SimulatedOutputs", "balance_outputs", "prediction_band", "time_outputs",
-           "output_errors"]
+__all__ = ["SimulatedOutputs", "balance_outputs", "prediction_band", "prediction_data",
+           "time_outputs", "output_errors"]
 
 
 @dataclass
@@ -73,7 +73,8 @@ BALANCE_TOLERANCE = 1e-6
 
 
 def balance_outputs(model: StateSpaceModel, basis: Sequence[Nonlinearity],
-                    data: FrequencyData, band_hz: tuple[float, float]) -> SimulatedOutputs:
+                    data: FrequencyData, band_hz: tuple[float, float], *,
+                    max_iterations: int = 60, continuation: bool = True) -> SimulatedOutputs:
     """Periodic steady state of the model and of its underlying linear part on ``data``.
 
     Parameters
@@ -88,6 +89,8 @@ def balance_outputs(model: StateSpaceModel, basis: Sequence[Nonlinearity],
         motion is to be predicted (:func:`prediction_band`): its nonlinear forces read it.
     band_hz : (float, float)
         The lines compared (the band the model was identified on).
+    max_iterations, continuation
+        Newton's budget (:meth:`ident.refine.harmonic_balance.HarmonicBalance.solve`).
 
     Returns
     -------
@@ -112,7 +115,8 @@ def balance_outputs(model: StateSpaceModel, basis: Sequence[Nonlinearity],
     bal.background = np.zeros_like(bal.background)   # the model's motion only
     G = modal.transfer(bal.z, bal.low)
     try:
-        state = bal.solve(G, tolerance=BALANCE_TOLERANCE, max_iterations=60)
+        state = bal.solve(G, tolerance=BALANCE_TOLERANCE, max_iterations=max_iterations,
+                          continuation=continuation)
     except BalanceError as exc:
         return SimulatedOutputs(f[keep], measured, None, linear, "harmonic balance",
                                 {"converged": False, "reason": str(exc),
@@ -142,6 +146,47 @@ def prediction_band(band_hz: tuple[float, float], sample_rate_hz: float,
     top = float(sample_rate_hz) / 2 - df
     low = df if output_quantity == "displacement" else float(band_hz[0])
     return (low, top)
+
+
+def prediction_data(inp: Any, basis: Sequence[Nonlinearity], band_hz: tuple[float, float],
+                    quantity: str, processing: Mapping[str, Any], *, transient_periods: int | None,
+                    time_base: str, bilinear_period_s: float | None) -> FrequencyData:
+    """A periodic record prepared for :func:`balance_outputs`: the lines of
+    :func:`prediction_band`, the basis channels' motion, and the record-to-spectrum
+    settings the model was identified with (``processing``, the result's ``processing``:
+    :func:`ident.core.model_json.processing_json`). The preparation's warnings are raised
+    as :class:`ident.errors.IdentWarning` (the caller records or drops them).
+
+    Parameters
+    ----------
+    inp : IdentInput
+        The record, its channels selected as the model's.
+    basis : sequence of Nonlinearity
+    band_hz : (float, float)
+        The band the model was identified on.
+    quantity : str
+        The outputs' quantity.
+    processing : mapping
+        ``highpass_hz``, ``steady_state_tolerance``, ``steady_periods``,
+        ``basis_oversample``, ``integration_min_snr``.
+    transient_periods : int or None
+    time_base, bilinear_period_s
+        The model's time base.
+    """
+    from fnsi_lab.ident.core.periodic import prepare_frequency_data
+
+    return prepare_frequency_data(
+        u=inp.u, y=inp.y, sample_rate_hz=inp.sample_rate_hz,
+        samples_per_period=inp.samples_per_period, basis=basis,
+        band_hz=prediction_band(band_hz, inp.sample_rate_hz, inp.samples_per_period, quantity),
+        transient_periods=transient_periods, output_quantity=quantity,
+        output_names=inp.output_channels, input_names=inp.input_channels,
+        excited_lines=inp.excited_lines, highpass_hz=processing.get("highpass_hz"),
+        steady_state_tolerance=float(processing.get("steady_state_tolerance", 0.05)),
+        steady_periods=str(processing.get("steady_periods", "auto")),
+        time_base=time_base, bilinear_period_s=bilinear_period_s,
+        basis_oversample=int(processing.get("basis_oversample", 8)),
+        integration_min_snr=processing.get("integration_min_snr", 4.0))
 
 
 def _zoh(a_c: np.ndarray, b_c: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
