@@ -669,11 +669,8 @@ def with_located_element(inp: Any, cfg: Any, *,
                          progress: Callable[[str], None] | None = None) -> tuple[Any, Localisation]:
     """``nonlinearities: auto``: the config with a spline element where :func:`locate_input`
     locates the nonlinearity, and the localisation (its JSON goes to the answer's evidence).
-
-    Raises
-    ------
-    IdentError
-        No candidate explains the distortion beyond the noise.
+    With no located candidate the config has no element (the linear answer; the
+    localisation says why: :attr:`Localisation.located` is None).
     """
     from dataclasses import replace
 
@@ -681,11 +678,8 @@ def with_located_element(inp: Any, cfg: Any, *,
     from fnsi_lab.ident.core.spline import AUTO_KNOTS
     located = locate_input(inp, cfg, progress=progress)
     best = located.located
-    if best is None:
-        raise IdentError("nonlinearities: auto found no location whose nonlinear force "
-                         "explains the distortion beyond the noise (fnsi-lab locate shows "
-                         "the candidates); identify a linear model without "
-                         "nonlinearities, or list the element")
+    if best is None:   # nothing to characterise: the linear answer (ident.pipeline says so)
+        return replace(cfg, nonlinearities_auto=False, nonlinearities=()), located
     cfg = replace(cfg, nonlinearities_auto=False, nonlinearities=(Nonlinearity(
         name=best.name.replace(" - ", "/"), kind="spline", channels=best.channels,
         knot_count=AUTO_KNOTS),))

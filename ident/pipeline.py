@@ -123,6 +123,14 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
                               progress=progress, refused_as_linear=True)
     if located is not None:
         session.evidence["localisation"] = located.to_json()
+        if located.located is None:
+            session.evidence["nonlinear_vs_linear"] = {
+                "test": "localisation", "decision": "linear", "residual_nonlinear": None,
+                "residual_linear": None, "statistic": None, "p_value": None,
+                "linear_modes": None,
+                "statement": "nonlinearities: auto located no element whose nonlinear force "
+                             "explains the distortion beyond the noise (localisation: the "
+                             "candidates and why): the answer is the linear fit"}
     fit = fit_session(session, order=order, sweep=sweep, reduce_at=reduce_at,
                       max_order=max_order, block_rows=block_rows, progress=progress)
     output_error = refine(session, fit)

@@ -139,6 +139,24 @@ def test_aircraft_gvt_joint_located_at_98N_and_nothing_at_12N(gvt):
     assert all(c.verdict == "not significant" for c in lo.candidates[:lo.refined])
 
 
+def test_nonlinearities_auto_with_nothing_located_answers_linear(gvt, tmp_path):
+    """`nonlinearities: auto` on the linear 12 N record: nothing is located, so the answer
+    is the linear fit (exit 0), with the localisation and one line saying why; it used to
+    stop with an error and lose the linear answer."""
+    cfg = tmp_path / "auto.yaml"
+    cfg.write_text(GVT_CONFIG.replace("nonlinearities: []", "nonlinearities: auto"))
+    out = tmp_path / "auto.json"
+    r = _run("ident", gvt[12], "--config", cfg, "--auto", "--json", out)
+    assert r.returncode == 0, r.stderr
+    res = json.loads(out.read_text())
+    nvl = res["nonlinear_vs_linear"]
+    assert nvl["test"] == "localisation" and nvl["decision"] == "linear"
+    assert res["nonlinearities"] == [] and res["coefficients"] == []
+    assert all(c["verdict"] != "located" for c in res["localisation"]["candidates"])
+    assert len(res["modes"]) >= 6     # the stuck structure's modes in 2-15 Hz (9 in truth)
+    assert "the answer is the linear fit" in r.stdout
+
+
 def test_candidates_from_a_file_through_the_cli(gvt, tmp_path):
     cands = tmp_path / "cands.yaml"
     cands.write_text("- {channels: {wing: 1, payload: -1}}\n- {channels: {drive: 1}}\n")
