@@ -514,7 +514,7 @@ class HarmonicBalance:
     # ------------------------------------------------------------------ the balance
     def solve(self, G: np.ndarray, *, basis=None, start: BalanceState | None = None,
               guess: np.ndarray | None = None, tolerance: float = 1e-9,
-              max_iterations: int = 40, continuation: bool = True) -> BalanceState:
+              max_iterations: int = 40) -> BalanceState:
         """The predicted motions of the model with transfer function ``G``.
 
         Parameters
@@ -532,11 +532,6 @@ class HarmonicBalance:
             motion's sensitivity to a parameter step).
         tolerance : float
             On ``||delta - Lambda G e(delta)|| / ||delta||``.
-        max_iterations : int
-            Newton iterations per attempt.
-        continuation : bool
-            When Newton from the measured motion fails, try again from the linear response
-            with the nonlinear forces switched on in eight steps (up to nine attempts).
 
         Raises
         ------
@@ -555,7 +550,7 @@ class HarmonicBalance:
             state._preconditioner = start._preconditioner
         if self._newton(state, linear, loop_gain, basis, scale, tolerance, max_iterations):
             return state
-        if start is None and continuation:
+        if start is None:
             # continuation from the linear response: the nonlinear forces switched on in
             # steps (a model whose clearances the search put 10-15 % off had no steady state
             # that Newton steps could reach from the measured motion)

@@ -73,8 +73,7 @@ BALANCE_TOLERANCE = 1e-6
 
 
 def balance_outputs(model: StateSpaceModel, basis: Sequence[Nonlinearity],
-                    data: FrequencyData, band_hz: tuple[float, float], *,
-                    max_iterations: int = 60, continuation: bool = True) -> SimulatedOutputs:
+                    data: FrequencyData, band_hz: tuple[float, float]) -> SimulatedOutputs:
     """Periodic steady state of the model and of its underlying linear part on ``data``.
 
     Parameters
@@ -89,8 +88,6 @@ def balance_outputs(model: StateSpaceModel, basis: Sequence[Nonlinearity],
         motion is to be predicted (:func:`prediction_band`): its nonlinear forces read it.
     band_hz : (float, float)
         The lines compared (the band the model was identified on).
-    max_iterations, continuation
-        Newton's budget (:meth:`ident.refine.harmonic_balance.HarmonicBalance.solve`).
 
     Returns
     -------
@@ -106,8 +103,8 @@ def balance_outputs(model: StateSpaceModel, basis: Sequence[Nonlinearity],
     measured = np.asarray(data.Y).reshape(R, F, -1)[:, keep]
     U = np.asarray(data.E[:, :m]).reshape(R, F, m)
     modal = ModalModel.from_matrices(model.a_d, model.b_d, model.c_d, model.d_d)
-    G_data = modal.transfer(np.asarray(data.z)[:F])                  # (F, p, m_e)
-    linear = np.einsum("kpi,rki->rkp", G_data[keep][:, :, :m], U[:, keep])
+    G_data = modal.transfer(np.asarray(data.z)[:F][keep])            # (F_keep, p, m_e)
+    linear = np.einsum("kpi,rki->rkp", G_data[:, :, :m], U[:, keep])
     if not basis:
         return SimulatedOutputs(f[keep], measured, None, linear, "harmonic balance",
                                 {"converged": True, "iterations": 0, "residual": 0.0})
@@ -115,14 +112,13 @@ def balance_outputs(model: StateSpaceModel, basis: Sequence[Nonlinearity],
     bal.background = np.zeros_like(bal.background)   # the model's motion only
     G = modal.transfer(bal.z, bal.low)
     try:
-        state = bal.solve(G, tolerance=BALANCE_TOLERANCE, max_iterations=max_iterations,
-                          continuation=continuation)
+        state = bal.solve(G, tolerance=BALANCE_TOLERANCE, max_iterations=60)
     except BalanceError as exc:
         return SimulatedOutputs(f[keep], measured, None, linear, "harmonic balance",
                                 {"converged": False, "reason": str(exc),
                                  "predicted_lines": int(bal.F0)})
     H = state.H[:, bal.data_index][:, keep]                          # (R, F_keep, s)
-    nonlinear = linear + np.einsum("kps,rks->rkp", G_data[keep][:, :, m:], H)
+    nonlinear = linear + np.einsum("kps,rks->rkp", G_data[:, :, m:], H)
     info = {"converged": True, "iterations": int(state.iterations),
             "residual": float(state.residual), "predicted_lines": int(bal.F0),
             "predicted_band_hz": [float(bal.K.min() * data.sample_rate_hz / data.samples_per_period),
