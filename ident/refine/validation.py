@@ -26,7 +26,7 @@ lines), like :class:`ident.core.periodic.FrequencyData`.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Mapping, Sequence
+from typing import Any, Literal, Mapping, Sequence, cast
 
 import numpy as np
 
@@ -35,7 +35,7 @@ from fnsi_lab.ident.core.basis import Nonlinearity
 from fnsi_lab.ident.core.fnsi import StateSpaceModel
 from fnsi_lab.ident.refine.harmonic_balance import BalanceError, HarmonicBalance
 from fnsi_lab.ident.refine.modal import ModalModel
-from fnsi_lab.ident.core.periodic import FrequencyData
+from fnsi_lab.ident.core.periodic import FrequencyData, OutputQuantity, TimeBase
 
 __all__ = ["SimulatedOutputs", "balance_outputs", "prediction_band", "prediction_data",
            "time_outputs", "output_errors"]
@@ -145,8 +145,9 @@ def prediction_band(band_hz: tuple[float, float], sample_rate_hz: float,
 
 
 def prediction_data(inp: Any, basis: Sequence[Nonlinearity], band_hz: tuple[float, float],
-                    quantity: str, processing: Mapping[str, Any], *, transient_periods: int | None,
-                    time_base: str, bilinear_period_s: float | None) -> FrequencyData:
+                    quantity: OutputQuantity, processing: Mapping[str, Any], *,
+                    transient_periods: int | None, time_base: TimeBase,
+                    bilinear_period_s: float | None) -> FrequencyData:
     """A periodic record prepared for :func:`balance_outputs`: the lines of
     :func:`prediction_band`, the basis channels' motion, and the record-to-spectrum
     settings the model was identified with (``processing``, the result's ``processing``:
@@ -179,7 +180,7 @@ def prediction_data(inp: Any, basis: Sequence[Nonlinearity], band_hz: tuple[floa
         output_names=inp.output_channels, input_names=inp.input_channels,
         excited_lines=inp.excited_lines, highpass_hz=processing.get("highpass_hz"),
         steady_state_tolerance=float(processing.get("steady_state_tolerance", 0.05)),
-        steady_periods=str(processing.get("steady_periods", "auto")),
+        steady_periods=cast(Literal["auto", "all"], str(processing.get("steady_periods", "auto"))),
         time_base=time_base, bilinear_period_s=bilinear_period_s,
         basis_oversample=int(processing.get("basis_oversample", 8)),
         integration_min_snr=processing.get("integration_min_snr", 4.0))
