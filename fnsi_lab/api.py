@@ -235,7 +235,7 @@ def analyse(sources: Any, config: Any = None, *, band_hz: Any = None, alpha: flo
 
 def locate(source: Any, config: Any = None, *, candidates: Any = "all",
            order: int | None = None, refine: int | None = None, knots: int | None = None,
-           form: str = "generic", progress: Any = None,
+           form: str = "auto", progress: Any = None,
            samples_per_period: int | None = None) -> Any:
     """Where is the structure nonlinear: candidate locations ranked (docs/discovery.md).
 
@@ -255,10 +255,13 @@ def locate(source: Any, config: Any = None, *, candidates: Any = "all",
     refine, knots : int, optional
         Candidates of the screen re-ranked by FNSI with a spline of ``knots`` knots
         (defaults :data:`ident.locate.REFINE_TOP`, :data:`ident.locate.REFINE_KNOTS`).
-    form : {'generic', 'jenkins'}
-        The force offered at each candidate: the generic columns (default), or a Jenkins
-        element (stick-slip friction) ranked by the information criterion
-        (:mod:`ident.locate_stick_slip`; docs/discovery.md, "Bolted joints").
+    form : {'auto', 'generic', 'jenkins'}
+        The force offered at each candidate: the generic columns, or a Jenkins element
+        (stick-slip friction) ranked by the information criterion
+        (:mod:`ident.locate_stick_slip`; docs/discovery.md, "Bolted joints"); ``auto``
+        (default): the Jenkins element first when there are at most
+        :data:`ident.locate.AUTO_STICK_SLIP_CANDIDATES` candidates, kept when it locates
+        one, else the generic columns.
     progress : callable(str), optional
 
     Returns

@@ -401,6 +401,10 @@ REFINE_KNOTS = 0
 #: Candidates of the screen refined by FNSI (on the SmallSat at 40 dB the screen put the
 #: stop 8th of 273: 12 leaves room).
 REFINE_TOP = 12
+#: ``form='auto'`` offers a Jenkins element first when there are at most this many
+#: candidates: its slip search costs 0.4-0.7 s per candidate (3 channels and their pairs:
+#: 6; 4 channels: 10), where the generic screen costs milliseconds.
+AUTO_STICK_SLIP_CANDIDATES = 10
 
 
 def _weighted_rss(data, Y_hat: np.ndarray, weighted: bool) -> float:
@@ -583,7 +587,7 @@ def _linear_order(data, weighted: bool, max_order: int = 40) -> int:
 
 
 def locate_input(inp, cfg, *, candidates: Any = "all", order: int | None = None,
-                 refine: int = REFINE_TOP, knots: int = REFINE_KNOTS, form: str = "generic",
+                 refine: int = REFINE_TOP, knots: int = REFINE_KNOTS, form: str = "auto",
                  progress: Callable[[str], None] | None = None) -> Localisation:
     """Where is the structure nonlinear: THE entry point (CLI, API, ``nonlinearities: auto``).
 
@@ -600,10 +604,13 @@ def locate_input(inp, cfg, *, candidates: Any = "all", order: int | None = None,
     refine : int
         The screen's best ``refine`` candidates are re-ranked by a full FNSI with a spline
         of ``knots`` knots at each (0: the screen alone).
-    form : {'generic', 'jenkins'}
+    form : {'auto', 'generic', 'jenkins'}
         The restoring force offered at each candidate: the generic columns (screen and
         refinement), or a Jenkins element ranked by the information criterion
         (:mod:`ident.locate_stick_slip`; every candidate, about 0.7 s each on 3 channels).
+        ``auto`` (default): with at most :data:`AUTO_STICK_SLIP_CANDIDATES` candidates the
+        Jenkins element first, kept when it locates one (a held-out test: the nested test on
+        other periods), else the generic columns; with more, the generic columns.
     progress : callable(str), optional
 
     Returns
@@ -630,15 +637,22 @@ def locate_input(inp, cfg, *, candidates: Any = "all", order: int | None = None,
                           channels={c: 1.0 for c in sorted({ch for c in cands for ch in c})})
     session = prepare_session(inp, lin_cfg, motion_for=(reader,))
     data = session.data
-    if form == "jenkins":
+    if form not in ("auto", "generic", "jenkins"):
+        raise IdentError(f"form {form!r} is not one of ['auto', 'generic', 'jenkins']")
+    notes: list[str] = []
+    if form == "jenkins" or form == "auto" and len(cands) <= AUTO_STICK_SLIP_CANDIDATES:
         from fnsi_lab.ident.locate_stick_slip import rank_stick_slip
 
         ranked = rank_stick_slip(session, cands, progress=progress)
         ranked.warnings = list(session.warnings)
         ranked.timings_s["total"] = time.perf_counter() - t0
-        return ranked
-    if form != "generic":
-        raise IdentError(f"form {form!r} is not one of ['generic', 'jenkins']")
+        if form == "jenkins" or ranked.located is not None:
+            ranked.form = "jenkins"
+            return ranked
+        best = ranked.candidates[0] if ranked.candidates else None
+        notes.append("form auto: a Jenkins element (stick-slip friction) located nothing"
+                     + (f" (its best, {best.name}: {best.note or best.verdict})" if best else "")
+                     + "; the generic columns below")
     shown = as_displacement_outputs(data)     # D = 0 for the screen's partial fractions
     n = int(order or cfg.order or _linear_order(data, session.weighted))
     t1 = time.perf_counter()
@@ -660,15 +674,18 @@ def locate_input(inp, cfg, *, candidates: Any = "all", order: int | None = None,
                                     else (lambda name: progress(f"refining {name}")))
     t3 = time.perf_counter()
     screened.timings_s.update(prepare=t1 - t0, screen=t2 - t1, refine=t3 - t2, total=t3 - t0)
-    screened.warnings = list(session.warnings) + list(screened.warnings)
+    screened.warnings = list(session.warnings) + notes + list(screened.warnings)
     screened.order = n
+    screened.form = "generic"
     return screened
 
 
 def with_located_element(inp: Any, cfg: Any, *,
                          progress: Callable[[str], None] | None = None) -> tuple[Any, Localisation]:
-    """``nonlinearities: auto``: the config with a spline element where :func:`locate_input`
-    locates the nonlinearity, and the localisation (its JSON goes to the answer's evidence).
+    """``nonlinearities: auto``: the config with an element where :func:`locate_input`
+    locates the nonlinearity (a spline there; a Jenkins element with ``slip: auto`` when a
+    Jenkins element located it), and the localisation (its JSON goes to the answer's
+    evidence).
     With no located candidate the config has no element (the linear answer; the
     localisation says why: :attr:`Localisation.located` is None).
     """
@@ -680,7 +697,12 @@ def with_located_element(inp: Any, cfg: Any, *,
     best = located.located
     if best is None:   # nothing to characterise: the linear answer (ident.pipeline says so)
         return replace(cfg, nonlinearities_auto=False, nonlinearities=()), located
-    cfg = replace(cfg, nonlinearities_auto=False, nonlinearities=(Nonlinearity(
-        name=best.name.replace(" - ", "/"), kind="spline", channels=best.channels,
-        knot_count=AUTO_KNOTS),))
-    return cfg, located
+    name = best.name.replace(" - ", "/")
+    if best.stage == "stick-slip":   # located as friction with memory: searched as such
+        from fnsi_lab.ident.core.basis import ParameterSpace
+        element = Nonlinearity(name=name, kind="jenkins", channels=best.channels,
+                               unknown=(ParameterSpace("slip"),))
+    else:
+        element = Nonlinearity(name=name, kind="spline", channels=best.channels,
+                               knot_count=AUTO_KNOTS)
+    return replace(cfg, nonlinearities_auto=False, nonlinearities=(element,)), located

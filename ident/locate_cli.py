@@ -14,7 +14,7 @@ examples:
   fnsi-lab locate test.mcap --config smallsat39 --json where.json
   fnsi-lab locate test.mcap --config ident.yaml --candidates pairs
   fnsi-lab locate data.npz --config ident.yaml --candidates my-candidates.yaml
-  fnsi-lab locate gvt.mcap --config linear.yaml --form jenkins    # a joint that sticks and slips
+  fnsi-lab locate gvt.mcap --config linear.yaml --form generic   # no stick-slip element tried
 
 Candidates: each channel to ground and each pair of channels measured in the same
 direction (names ending -X, _Y, :+Z...; every pair when the names carry none): 'all'
@@ -27,7 +27,9 @@ them all by how much of the linear model's residual it explains, then the best f
 re-ranked by a full FNSI with those columns at each (--knots adds a spline). With --form
 jenkins every candidate gets instead a Jenkins element (a spring in series with a slider:
 friction with memory, which no function of the present motion draws), its slip from the
-data, ranked by the information criterion against the linear model's. The config's
+data, ranked by the information criterion against the linear model's; --form auto (the
+default) does that first when there are at most 10 candidates and keeps it when it locates
+one (a test on other periods than the fit), else the generic columns. The config's
 nonlinearities are not used (they are the question); its band, inputs, outputs and order are.
 """
 
@@ -60,9 +62,11 @@ def register(subparsers) -> None:
                    help=f"spline knots added to the refinement's generic columns (default "
                         f"{loc.REFINE_KNOTS}: none; 24 tells nearly equal motions apart better "
                         "on many outputs, at 3x the time)")
-    p.add_argument("--form", choices=("generic", "jenkins"), default="generic",
-                   help="force offered at each candidate: generic columns (default) or a "
-                        "Jenkins element, stick-slip friction (docs/discovery.md)")
+    p.add_argument("--form", choices=("auto", "generic", "jenkins"), default="auto",
+                   help="force offered at each candidate: generic columns, a Jenkins element "
+                        "(stick-slip friction), or auto (default: with at most "
+                        f"{loc.AUTO_STICK_SLIP_CANDIDATES} candidates the Jenkins element "
+                        "first, the generic columns when it locates nothing; docs/discovery.md)")
     p.add_argument("--top", type=int, default=10, metavar="N",
                    help="candidates printed (default 10; the JSON has them all)")
     p.add_argument("--json", dest="json_out", default=None, metavar="OUT.json",

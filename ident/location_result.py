@@ -94,6 +94,8 @@ class Localisation:
     linear_criterion : float or None
         ``stick-slip``: the linear model's information criterion the candidates are
         compared with.
+    form : {'generic', 'jenkins'}
+        The force the candidates were offered (``form='auto'`` says which it kept).
     """
 
     candidates: list
@@ -108,6 +110,7 @@ class Localisation:
     refine_knots: int = 0
     linear_misfit: float | None = None
     linear_criterion: float | None = None
+    form: str = "generic"
 
     @property
     def located(self) -> "LocationScore | None":
@@ -123,7 +126,7 @@ class Localisation:
         return {"candidates": [c.to_dict() for c in self.candidates], "order": self.order,
                 "n_lines": self.n_lines, "columns": list(self.columns),
                 "degrees_of_freedom": list(self.degrees_of_freedom), "weighted": self.weighted,
-                "p_significant": P_SIGNIFICANT, "refined": self.refined,
+                "p_significant": P_SIGNIFICANT, "refined": self.refined, "form": self.form,
                 "refine_knots": self.refine_knots, "linear_misfit": self.linear_misfit,
                 "timings_s": dict(self.timings_s),
                 "warnings": list(self.warnings),

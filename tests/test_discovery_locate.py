@@ -131,12 +131,30 @@ def test_aircraft_gvt_joint_located_at_98N_and_nothing_at_12N(gvt):
     At 12 N the joint never slips (docs/aircraft.md: the record is linear): no candidate may
     be located, whatever the ranking (that is the test that the significance is not a
     threshold tuned to the nonlinear case)."""
-    hi = fnsi_lab.locate(gvt[98], gvt["config"])
+    hi = fnsi_lab.locate(gvt[98], gvt["config"], form="generic")
     assert hi.candidates[0].channels == {"wing": 1.0, "payload": -1.0}
     assert hi.located is not None and hi.located.name == "wing - payload"
-    lo = fnsi_lab.locate(gvt[12], gvt["config"])
-    assert lo.located is None
+    lo = fnsi_lab.locate(gvt[12], gvt["config"])     # form auto: both forms, nothing located
+    assert lo.located is None and lo.form == "generic"
     assert all(c.verdict == "not significant" for c in lo.candidates[:lo.refined])
+    assert any(w.startswith("form auto: a Jenkins element") for w in lo.warnings)
+
+
+def test_form_auto_offers_few_candidates_a_jenkins_element_first(gvt, tmp_path):
+    """6 candidates (3 channels and their pairs): the default form tries the stick-slip
+    element first and keeps its ranking when it locates the joint (a test on other periods);
+    `nonlinearities: auto` then puts a Jenkins element with its slip from the data there."""
+    loc = fnsi_lab.locate(gvt[98], gvt["config"])
+    assert loc.form == "jenkins" and loc.to_json()["form"] == "jenkins"
+    assert loc.located is not None and loc.located.name == "wing - payload"
+    assert loc.candidates[0].stage == "stick-slip" and loc.candidates[0].slip > 0
+    cfg = tmp_path / "auto.yaml"
+    cfg.write_text(GVT_CONFIG.replace("nonlinearities: []", "nonlinearities: auto"))
+    res = fnsi_lab.identify(gvt[98], str(cfg)).to_json()
+    (element,) = res["nonlinearities"]
+    assert element["kind"] == "jenkins" and element["estimated"] == ["slip"]
+    assert element["channels"] == {"wing": 1.0, "payload": -1.0}
+    assert res["localisation"]["form"] == "jenkins"
 
 
 def test_nonlinearities_auto_with_nothing_located_answers_linear(gvt, tmp_path):
