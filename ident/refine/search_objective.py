@@ -6,14 +6,13 @@ over each parameter's grid (:class:`SearchObjective`).
 
 from __future__ import annotations
 
-import os
-from concurrent.futures import ThreadPoolExecutor
 from typing import Callable, Sequence
 
 import numpy as np
 
 from fnsi_lab.ident.core import fnsi
 from fnsi_lab.ident.core.basis import Nonlinearity
+from fnsi_lab.ident.core.parallel import default_workers, parallel_map
 from fnsi_lab.ident.core.periodic import FrequencyData, with_basis
 from fnsi_lab.ident.errors import IdentError, NotIdentifiableError
 from fnsi_lab.ident.refine.motion_noise import MotionNoise
@@ -60,7 +59,7 @@ class SearchObjective:
         self.max_order, self.max_block_rows = self.order, self.i_search
         self.y_energy = float(np.sum(np.abs(data.Y) ** 2))
         self.n_workers = max(1, int(workers) if workers is not None
-                             else min(4, os.cpu_count() or 1))
+                             else default_workers())
         self.n_evaluations = 0
         self.cont = [k for k, u in enumerate(unknowns) if u.continuous]
         self.weights: np.ndarray | None = None      # (F, p) once the correction is on
@@ -138,7 +137,7 @@ class SearchObjective:
         keys = [tuple(np.round(v, 15)) for v in points]
         todo = {k: v for k, v in zip(keys, points) if k not in self.memo}
         self.n_evaluations += len(todo)
-        self.memo.update(zip(todo, _parallel_map(self.evaluate, list(todo.values()),
+        self.memo.update(zip(todo, parallel_map(self.evaluate, list(todo.values()),
                                                  self.n_workers)))
         return [self.memo[k] for k in keys]
 
@@ -187,14 +186,6 @@ class SearchObjective:
             self.i_search = self.rows_for(self.order)
             self.memo.clear()
             self.note(f"order {self.order}")
-
-
-def _parallel_map(fn, items: list, workers: int) -> list:
-    """``[fn(x) for x in items]``, on up to ``workers`` threads."""
-    if workers <= 1 or len(items) <= 1:
-        return [fn(x) for x in items]
-    with ThreadPoolExecutor(min(workers, len(items))) as pool:
-        return list(pool.map(fn, items))
 
 
 def _scan_minimum(grid: np.ndarray, vs: np.ndarray, *, log: bool) -> float:
