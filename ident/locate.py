@@ -525,6 +525,7 @@ def refine_locations(data, screened: "Localisation", *, order: int, weighted: bo
     head = screened.candidates[:top]
     p, F = data.n_outputs, data.n_lines
     rows = _block_rows(data, order)
+
     def refined(c: LocationScore) -> tuple[LocationScore, float, int]:
         if progress is not None:
             progress(c.name)
@@ -689,6 +690,7 @@ def with_located_element(inp: Any, cfg: Any, *,
     locates the nonlinearity (a spline there; a Jenkins element with ``slip: auto`` when a
     Jenkins element located it), and the localisation (its JSON goes to the answer's
     evidence).
+
     With no located candidate the config has no element (the linear answer; the
     localisation says why: :attr:`Localisation.located` is None).
     """
