@@ -686,10 +686,8 @@ def locate_input(inp, cfg, *, candidates: Any = "all", order: int | None = None,
 
 def with_located_element(inp: Any, cfg: Any, *,
                          progress: Callable[[str], None] | None = None) -> tuple[Any, Localisation]:
-    """``nonlinearities: auto``: the config with an element where :func:`locate_input`
-    locates the nonlinearity (a spline there; a Jenkins element with ``slip: auto`` when a
-    Jenkins element located it), and the localisation (its JSON goes to the answer's
-    evidence).
+    """``nonlinearities: auto``: the config with a spline element where :func:`locate_input`
+    locates the nonlinearity, and the localisation (its JSON goes to the answer's evidence).
 
     With no located candidate the config has no element (the linear answer; the
     localisation says why: :attr:`Localisation.located` is None).
@@ -702,12 +700,8 @@ def with_located_element(inp: Any, cfg: Any, *,
     best = located.located
     if best is None:   # nothing to characterise: the linear answer (ident.pipeline says so)
         return replace(cfg, nonlinearities_auto=False, nonlinearities=()), located
-    name = best.name.replace(" - ", "/")
-    if best.stage == "stick-slip":   # located as friction with memory: searched as such
-        from fnsi_lab.ident.core.basis import ParameterSpace
-        element = Nonlinearity(name=name, kind="jenkins", channels=best.channels,
-                               unknown=(ParameterSpace("slip"),))
-    else:
-        element = Nonlinearity(name=name, kind="spline", channels=best.channels,
-                               knot_count=AUTO_KNOTS)
+    # the location, whichever force found it; the shape is the spline's to show (a Jenkins
+    # element also locates the Silverbox's hardening spring, which is no friction)
+    element = Nonlinearity(name=best.name.replace(" - ", "/"), kind="spline",
+                           channels=best.channels, knot_count=AUTO_KNOTS)
     return replace(cfg, nonlinearities_auto=False, nonlinearities=(element,)), located

@@ -127,8 +127,9 @@ def _print_stick_slip(loc, top: int, out) -> None:
     if best is None:
         print("nothing located (the verdicts and notes above say why)", file=out)
     else:
-        print(f"located: {best.name} (channels {best.channels}); identify it with kind: "
-              f"jenkins, slip: auto there (docs/discovery.md)", file=out)
+        print(f"located: {best.name} (channels {best.channels}); a Jenkins element there is "
+              "supported (kind: jenkins, slip: auto, for a joint that sticks and slips); "
+              "kind: spline there shows the shape (docs/discovery.md)", file=out)
     for w in loc.warnings:
         print(f"  warning: {w}", file=out)
 
