@@ -130,6 +130,16 @@ class Identification:
         return out
 
     @property
+    def linear_comparison_statement(self) -> str | None:
+        """One line: the answer against the linear fit of the same data (the JSON's
+        ``nonlinear_vs_linear.statement``: the nested test, a refused parameter search, an
+        empty localisation), None without one."""
+        if self.nested is not None:
+            return self.nested.statement
+        statement = (self.session.evidence.get("nonlinear_vs_linear") or {}).get("statement")
+        return None if statement is None else str(statement)
+
+    @property
     def linear_answer(self) -> bool:
         """The nonlinear terms are not supported: the modes are the linear fit's."""
         return self.nested is not None and not self.nested.supported

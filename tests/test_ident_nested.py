@@ -52,6 +52,11 @@ def test_supported_cubic_keeps_its_answer():
     sim = nvl["simulation"]
     assert sim["converged"] and sim["worse"] == [] and len(sim["outputs"]) == 3
     assert all(o["error_db"] < o["linear_fit_error_db"] - 10 for o in sim["outputs"])
+    # the HTML report's summary (and the live view's) says it in the same words
+    from fnsi_lab.viewer.report import summary_rows
+
+    assert r.linear_comparison_statement == nvl["statement"]
+    assert ("nonlinear vs linear", nvl["statement"]) in summary_rows(r.to_json())
 
 
 def test_a_model_that_simulates_worse_than_the_linear_fit_is_not_the_answer():

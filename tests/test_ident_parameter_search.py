@@ -549,6 +549,8 @@ def test_a_refused_search_gives_the_linear_answer_and_says_why(tmp_path, capsys,
         assert nvl["decision"] == "linear" and res["coefficients"] == []
         line = next(ln for ln in text.splitlines() if ln.startswith("nonlinear vs linear:"))
         assert "never in contact" in line and "the answer is the linear fit" in line
+        from fnsi_lab.viewer.report import summary_rows
+        assert ("nonlinear vs linear", nvl["statement"]) in summary_rows(res)
 
 
 def test_viewer_logs_the_objective(tmp_path):

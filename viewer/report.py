@@ -173,6 +173,9 @@ def summary_rows(result: Mapping[str, Any]) -> list[tuple[str, str]]:
             if c.get("verdict"):
                 text += f"; {c['verdict']}"
             rows.append((f"{c['name']}, {label}", text))
+    statement = (result.get("nonlinear_vs_linear") or {}).get("statement")
+    if statement:   # is the nonlinear answer the answer? (docs/ident.md)
+        rows.append(("nonlinear vs linear", str(statement)))
     return rows
 
 

@@ -132,6 +132,9 @@ def summary_rows(update: ServiceUpdate) -> list[tuple[str, str]]:
             reason = c.get("verdict_reason") if c["verdict"] != "identified" else None
             rows.append((f"{c['name']}, verdict", str(c["verdict"])
                          + (f" ({reason})" if reason else "")))
+    statement = ai.identification.linear_comparison_statement
+    if statement:   # is the nonlinear answer the answer? (docs/ident.md)
+        rows.append(("nonlinear vs linear", statement))
     return rows
 
 
