@@ -68,19 +68,13 @@ def main(argv: list[str] | None = None) -> int:
     truth = truth[(truth > 2) & (truth < 15)]
     free = np.asarray(model.joint_free_modes_hz())
     free = free[(free > 2) & (free < 15)]
-    from fnsi_lab.ident.errors import NotIdentifiableError
-
-    answers, refused = {}, {}
+    answers = {}
     for row in rows:
         path = args.work / row["file"]
         for kind in ("linear", args.joint):
             t0 = time.perf_counter()
-            try:
-                res = fnsi_lab.identify(str(path), config=str(args.work / f"aircraft-{kind}.yaml"))
-            except NotIdentifiableError as exc:   # a parameter the data cannot tell: the
-                refused[row["level_n_rms"]] = str(exc)   # answer is the linear fit's
-                res = answers[(row["level_n_rms"], "linear")]
-                print(f"{row['level_n_rms']:5g} N {kind}: refused ({exc})", file=sys.stderr)
+            # a parameter the data cannot tell leaves its element out (nonlinear_vs_linear)
+            res = fnsi_lab.identify(str(path), config=str(args.work / f"aircraft-{kind}.yaml"))
             answers[(row["level_n_rms"], "linear" if kind == "linear" else "joint")] = res
             print(f"{row['level_n_rms']:5g} N {kind:6s}: order {res.order}, "
                   f"{len(res.modes)} physical modes, {time.perf_counter() - t0:.1f} s",
@@ -91,16 +85,18 @@ def main(argv: list[str] | None = None) -> int:
         level = row["level_n_rms"]
         other = rows[i + 1] if i + 1 < len(rows) else rows[i - 1]
         lin, nl = answers[(level, "linear")], answers[(level, "joint")]
+        nl_doc = nl.to_json()
+        nvl = nl_doc.get("nonlinear_vs_linear") or {}
         entry = {"level_n_rms": level, "validated_on_n_rms": other["level_n_rms"],
-                 "refused": refused.get(level),
+                 "refused": [r["name"] for r in nvl.get("refused") or []],
                  "linear": {"order": lin.order, "modes": _modes(lin, truth),
                             "damping": {float(m["frequency_hz"]): m["damping_ratio"]
                                         for m in lin.modes}},
                  "nonlinear": {"order": nl.order,
                                "modes": _modes(nl, free if args.joint != "joint" else truth),
-                               "decision": ("refused" if level in refused else
-                                            nl.nested.decision if nl.nested else None),
-                               "slip_m": [e.get("slip") for e in nl.to_json()["nonlinearities"]],
+                               "decision": nvl.get("decision"),
+                               "statement": nvl.get("statement"),
+                               "slip_m": [e.get("slip") for e in nl_doc["nonlinearities"]],
                                "coefficients": [{k: c.get(k) for k in
                                                  ("name", "value", "std_real", "verdict")}
                                                 for c in nl.coefficients]},
@@ -138,6 +134,8 @@ def main(argv: list[str] | None = None) -> int:
               + f" [{nl['decision']}] slip {nl['slip_m']}"
               + f" | on {e['validated_on_n_rms']:g} N: nl {val(nl, 'error_db')}, "
                 f"its linear {val(nl, 'linear_error_db')}, linear fit {val(lin, 'linear_error_db')}")
+        if nl.get("statement"):
+            print(f"        nonlinear vs linear: {nl['statement'][:240]}")
         nl_truth = free if args.joint != "joint" else truth
         for f0, f1 in zip(truth, nl_truth):
             a, b = lin["modes"].get(float(f0)), nl["modes"].get(float(f1))
