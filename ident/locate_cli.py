@@ -108,7 +108,8 @@ def print_ranking(loc, top: int = 10, out=None) -> None:
 
 
 def _print_stick_slip(loc, top: int, out) -> None:
-    """``--form jenkins``: one line per candidate, the criterion against the linear model's."""
+    """The Jenkins ranking (``--form jenkins``, or ``auto`` when it located one): one line per
+    candidate, the criterion against the linear model's."""
     print(f"{len(loc.candidates)} candidates, each with a Jenkins element (slip from the data), "
           f"ranked by the information criterion (mdl) against the linear model's "
           f"{loc.linear_criterion:.4g} (order {loc.order}); "

@@ -153,11 +153,10 @@ def _linear_within_the_noise(session) -> bool:
     """True when the distortion analysis of the record (``fnsi-lab analyse``) finds no output
     nonlinear (an analysis that cannot run, e.g. one period, does not veto)."""
     from fnsi_lab.ident.analysis import analyse_input
-    from fnsi_lab.ident.errors import IdentError as _Error
 
     try:
         record = analyse_input(session.input, session.config, keep_spectra=False)
-    except (_Error, ValueError, np.linalg.LinAlgError):
+    except (IdentError, ValueError, np.linalg.LinAlgError):
         return False
     flags = [o.nonlinear for o in record.outputs]
     return bool(flags) and all(f is False for f in flags)

@@ -36,7 +36,8 @@ from fnsi_lab.ident.refine.parameter_search import DEFAULT_SEARCH_ORDER
 from fnsi_lab.ident.refinement import refine
 from fnsi_lab.ident.request import (DEFAULT_ORDERS, IdentRequest, basis_from_truth,
                                     default_config, resolve_request)
-from fnsi_lab.ident.session import (IdentSession, apply_recording_truth, prepare_session)
+from fnsi_lab.ident.session import (IdentSession, apply_recording_truth, linear_answer_evidence,
+                                    prepare_session)
 
 __all__ = ["IdentSession", "Identification", "Mode", "Coefficient", "prepare_session",
            "identify_input",
@@ -124,13 +125,10 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
     if located is not None:
         session.evidence["localisation"] = located.to_json()
         if located.located is None:
-            session.evidence["nonlinear_vs_linear"] = {
-                "test": "localisation", "decision": "linear", "residual_nonlinear": None,
-                "residual_linear": None, "statistic": None, "p_value": None,
-                "linear_modes": None,
-                "statement": "nonlinearities: auto located no element whose nonlinear force "
-                             "explains the distortion beyond the noise (localisation: the "
-                             "candidates and why): the answer is the linear fit"}
+            session.evidence["nonlinear_vs_linear"] = linear_answer_evidence(
+                "localisation", "nonlinearities: auto located no element whose nonlinear force "
+                "explains the distortion beyond the noise (localisation: the candidates and "
+                "why): the answer is the linear fit")
     fit = fit_session(session, order=order, sweep=sweep, reduce_at=reduce_at,
                       max_order=max_order, block_rows=block_rows, progress=progress)
     output_error = refine(session, fit)

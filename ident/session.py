@@ -28,7 +28,7 @@ from fnsi_lab.ident.core.spline import needs_knots, resolve_knots
 from fnsi_lab.progress import Progress
 
 __all__ = ["IdentSession", "prepare_session", "apply_recording_truth", "no_excited_line",
-           "refused_search_evidence"]
+           "refused_search_evidence", "linear_answer_evidence"]
 
 
 @dataclass
@@ -276,15 +276,20 @@ def refused_search_evidence(requested: Sequence[Nonlinearity], kept: Sequence[No
     names = ", ".join(repr(nl.name) for nl in left_out)
     rest = (f"the answer keeps {', '.join(repr(nl.name) for nl in kept)}"
             if kept else "the answer is the linear fit")
-    out: dict[str, Any] = {
-        "test": "parameter search", "decision": "linear" if not kept else None,
-        "statement": (f"not identifiable from these data: "
-                      f"{'; '.join(dict.fromkeys(reasons.values()))}; "
-                      f"{names} left out, {rest}"),
-        "refused": [{"name": nl.name, "kind": nl.kind, "channels": dict(nl.channels),
-                     "parameters": [u.parameter for u in nl.unknown], "reason": reasons[nl.name]}
-                    for nl in left_out]}
-    if not kept:
-        out.update(residual_nonlinear=None, residual_linear=None, statistic=None, p_value=None,
-                   linear_modes=None)
+    statement = (f"not identifiable from these data: "
+                 f"{'; '.join(dict.fromkeys(reasons.values()))}; {names} left out, {rest}")
+    out: dict[str, Any] = (linear_answer_evidence("parameter search", statement) if not kept
+                           else {"test": "parameter search", "decision": None,
+                                 "statement": statement})
+    out["refused"] = [{"name": nl.name, "kind": nl.kind, "channels": dict(nl.channels),
+                       "parameters": [u.parameter for u in nl.unknown],
+                       "reason": reasons[nl.name]} for nl in left_out]
     return out
+
+
+def linear_answer_evidence(test: str, statement: str) -> dict[str, Any]:
+    """``nonlinear_vs_linear`` of an answer that is the linear fit without a nested test
+    (``test``: what decided it, in words), in the nested test's keys (docs/ident.md)."""
+    return {"test": test, "decision": "linear", "statement": statement,
+            "residual_nonlinear": None, "residual_linear": None, "statistic": None,
+            "p_value": None, "linear_modes": None}
