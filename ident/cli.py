@@ -350,15 +350,23 @@ def _print_curves(res: dict, out=None) -> None:
               file=out)
     for sgg in res.get("suggestions", []):
         print(f"  suggested form of {sgg['element']} ({sgg['argument']}): {sgg['kind']}"
-              + "".join(f", {k} {sgg[k]}" for k in ("clearances", "clearance", "side",
-                                                   "exponent", "velocity_scale") if k in sgg)
-              + (f", coefficients {sgg['values']}" if "values" in sgg else "")
+              + "".join(f", {k} {_short(sgg[k])}" for k in ("clearances", "clearance", "side",
+                                                   "exponent", "velocity_scale", "slip")
+                          if k in sgg)
+              + (f", coefficients {_short(sgg['values'])}" if "values" in sgg else "")
               + (f" ({sgg['reason']})" if "reason" in sgg else ""), file=out)
     text = (res.get("suggested_config") or {}).get("yaml")
     if text:
         print("suggested config (paste, or write it with --suggest OUT.yaml):", file=out)
         for line in text.splitlines():
             print(f"    {line}", file=out)
+
+
+def _short(value: Any) -> str:
+    """A suggestion's parameter in 4 significant digits (lists element-wise)."""
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_short(v) for v in value) + "]"
+    return f"{value:.4g}" if isinstance(value, float) else str(value)
 
 
 def _write_suggestion(res: dict, path: str) -> None:

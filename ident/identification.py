@@ -118,7 +118,7 @@ class Identification:
         """``kind: spline``: each element's force curve (as a dict) under its first
         coefficient (displacement) or its first velocity coefficient."""
         basis = self.config.nonlinearities
-        curves = self._spline_curves({c["name"]: c["value"] for c in summaries})
+        curves = self._spline_curves(summaries)
         firsts = {nl.name: nl.coefficient_names[0] for nl in basis}
         vel = {nl.name: next((n for n in nl.coefficient_names if ":v" in n), None)
                for nl in basis}
@@ -170,18 +170,40 @@ class Identification:
     def spline_curves(self) -> list:
         """Force curves of the ``kind: spline`` elements with their bands and suggested
         parametric forms (:func:`ident.core.spline.spline_curves`; empty without spline)."""
-        return self._spline_curves({c.name: c.value for c in self.coefficients})
+        return self._spline_curves([{"name": c.name, "value": c.value, "verdict": c.verdict}
+                                    for c in self.coefficients])
 
-    def _spline_curves(self, values: dict[str, float]) -> list:
-        """:attr:`spline_curves` at the coefficient ``values`` (computed once)."""
+    def _spline_curves(self, summaries: list[dict]) -> list:
+        """:attr:`spline_curves` at the coefficients' ``value``, each curve's suggestion
+        withheld where their ``verdict`` says the data do not determine it (computed once)."""
         basis = self.config.nonlinearities
         if self.coefficient_spectra is None or not any(nl.kind == "spline" for nl in basis):
             return []
         if "spline_curves" not in self._cache:
-            from fnsi_lab.ident.core.spline import spline_curves
-            self._cache["spline_curves"] = spline_curves(basis, self.coefficient_spectra,
-                                                         values, self.data.motion)
+            from fnsi_lab.ident.core.spline import determined_suggestion, spline_curves
+            from fnsi_lab.ident.robust.verdict import NOT_IDENTIFIABLE
+            values = {c["name"]: c["value"] for c in summaries}
+            curves = spline_curves(basis, self.coefficient_spectra, values, self.data.motion)
+            verdicts = {nl.name: [c.get("verdict") for c in summaries
+                                  if c["name"] in nl.coefficient_names] for nl in basis}
+            for c in curves:
+                determined = any(v != NOT_IDENTIFIABLE for v in verdicts[c.element])
+                c.suggestion = determined_suggestion(
+                    c, determined, self._located_jenkins(c.element),
+                    length_unit=str(self.units.get("length") or ""))
+            self._cache["spline_curves"] = curves
         return list(self._cache["spline_curves"])
+
+    def _located_jenkins(self, element: str) -> dict | None:
+        """The localisation's located candidate when a Jenkins element located it on this
+        element's channels (``nonlinearities: auto`` with ``locate``'s form ``jenkins``)."""
+        loc = self.session.evidence.get("localisation") or {}
+        best = (loc.get("candidates") or [None])[0]
+        nl = next((n for n in self.config.nonlinearities if n.name == element), None)
+        if (loc.get("form") != "jenkins" or not best or best.get("verdict") != "located"
+                or nl is None or dict(best.get("channels") or {}) != dict(nl.channels)):
+            return None
+        return dict(best)
 
     def suggested_config(self) -> tuple[dict, str] | None:
         """The config with each spline element replaced by its suggested parametric form,

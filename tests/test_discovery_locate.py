@@ -155,6 +155,14 @@ def test_form_auto_offers_few_candidates_a_jenkins_element_first(gvt, tmp_path):
     assert element["kind"] == "spline"
     assert element["channels"] == {"wing": 1.0, "payload": -1.0}
     assert res["localisation"]["form"] == "jenkins"
+    # a friction joint's displacement curve is not determined by the data: no clearance is
+    # read off it (it suggested a 4 um gap at 84 N), the located Jenkins element is offered
+    assert all(c["verdict"] == "not identifiable" for c in res["coefficients"])
+    (suggestion,) = res["suggestions"]
+    assert suggestion["kind"] == "jenkins" and suggestion["slip"] > 0
+    (item,) = res["suggested_config"]["config"]["nonlinearities"]
+    assert item == {"name": element["name"], "kind": "jenkins",
+                    "channels": {"wing": 1, "payload": -1}, "slip": "auto"}
 
 
 def test_nonlinearities_auto_with_nothing_located_answers_linear(gvt, tmp_path):

@@ -228,3 +228,38 @@ def test_friction_level_and_no_form_for_a_shapeless_curve():
                          np.zeros_like(x), (), np.zeros(0))
     s = suggest_parametric(wiggle)
     assert s["kind"] == "none" and "closest" in s
+
+
+def test_no_form_is_read_off_a_curve_the_data_do_not_determine():
+    """A curve whose coefficients are all `not identifiable` suggests nothing (its read-off
+    form is kept as `closest`); when the localisation located the element with a Jenkins
+    element, that form is suggested with `slip: auto`. `nonlinearities: auto` in the
+    original config is replaced by the suggested list (it used to come out as the letters
+    a, u, t, o)."""
+    from fnsi_lab.ident.core.spline import determined_suggestion, suggested_config
+
+    x = np.linspace(-3.4, 3.4, 201)
+    f = 100 * np.where(x > 1.3, x - 1.3, 0) + 120 * np.where(x < -1.5, x + 1.5, 0)
+    c = SplineCurve("j", "displacement", x, f, np.zeros_like(x), (-2.0, -1.0, 1.0, 2.0),
+                    np.zeros(0))
+    c.suggestion = suggest_parametric(c)
+    assert c.suggestion["kind"] == "trilinear"
+    assert determined_suggestion(c, True) == c.suggestion
+    undetermined = determined_suggestion(c, False)
+    assert undetermined["kind"] == "none" and undetermined["closest"]["kind"] == "trilinear"
+    located = {"name": "A - B", "channels": {"A": 1.0, "B": -1.0}, "verdict": "located",
+               "slip": 3.7e-5}
+    jenkins = determined_suggestion(c, False, located, length_unit="m")
+    assert jenkins["kind"] == "jenkins" and jenkins["slip"] == 3.7e-5
+    assert "3.7e-05 m" in jenkins["reason"]
+    c.suggestion = jenkins
+    nl = Nonlinearity(name="j", kind="spline", channels={"A": 1, "B": -1},
+                      knots=(-2.0, -1.0, 1.0, 2.0))
+    mapping, text = suggested_config({"band_hz": [1, 10], "nonlinearities": "auto"}, (nl,), [c])
+    assert mapping["nonlinearities"] == [{"name": "j", "kind": "jenkins",
+                                          "channels": {"A": 1, "B": -1}, "slip": "auto"}]
+    assert text.startswith("# j (displacement): jenkins, the data do not determine")
+    parse_ident_config(mapping)          # the suggestion parses as a config
+    c.suggestion = undetermined
+    mapping, _ = suggested_config({"band_hz": [1, 10], "nonlinearities": "auto"}, (nl,), [c])
+    assert mapping["nonlinearities"] == []

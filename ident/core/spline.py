@@ -30,7 +30,8 @@ from fnsi_lab.ident.core.basis import Nonlinearity, hinge_columns
 from fnsi_lab.ident.errors import IdentError
 
 __all__ = ["hinge_columns", "spread_knots", "resolve_knots", "needs_knots", "SplineCurve", "spline_curves",
-           "suggest_parametric", "suggested_config", "CURVE_POINTS", "SEARCH_MARGIN"]
+           "suggest_parametric", "suggested_config", "determined_suggestion", "CURVE_POINTS",
+           "SEARCH_MARGIN"]
 
 #: Knots of the spline that ``nonlinearities: auto`` puts at the located element (on the
 #: SmallSat, 12 knots read the NC2-Z clearances within 1.8 % and the contact stiffnesses
@@ -298,6 +299,51 @@ def suggest_parametric(curve: SplineCurve) -> dict:
     return out
 
 
+def determined_suggestion(curve: SplineCurve, determined: bool,
+                          located: Mapping[str, Any] | None = None, *,
+                          length_unit: str = "") -> dict:
+    """The curve's suggestion if the data determine the curve, else why not.
+
+    A form read off a curve whose coefficients are all ``not identifiable`` (or that the
+    nested test found unsupported: the same verdict) would be a guess printed as a finding
+    (on the aircraft-like GVT: a clearance of 4 um on a friction joint whose gap is 300 um).
+    Then the suggestion is ``none``, its read-off form kept as ``closest``; when the
+    localisation located this element's channels with a stick-slip (Jenkins) element
+    (``locate --form auto``), that form is suggested instead, with its slip from the data.
+
+    Parameters
+    ----------
+    curve : SplineCurve
+    determined : bool
+        Some coefficient of the element is ``identified`` or ``weak`` (False: every one
+        is ``not identifiable``).
+    located : mapping, optional
+        The localisation's located candidate (``Localisation.to_json()["candidates"][0]``)
+        when it was located by a Jenkins element on this element's channels.
+    length_unit : str, optional
+        Unit of the slip in the reason (the outputs' length unit).
+
+    Returns
+    -------
+    dict
+        :func:`suggest_parametric`'s dict, or ``{"kind": "none" | "jenkins", "reason",
+        "closest", ["slip"]}``.
+    """
+    if determined:
+        return dict(curve.suggestion)
+    reason = ("the data do not determine the curve (every coefficient of the element is not "
+              "identifiable), so no form is read off it")
+    closest = dict(curve.suggestion)
+    if located is not None and located.get("slip") and curve.argument == "displacement":
+        slip = float(located["slip"])
+        return {"kind": "jenkins", "slip": slip, "closest": closest,
+                "reason": f"{reason}; the localisation located {located.get('name', 'it')} as "
+                          f"a stick-slip (Jenkins) element slipping at {slip:.3g}"
+                          f"{' ' + length_unit if length_unit else ''} "
+                          "(docs/discovery.md)"}
+    return {"kind": "none", "reason": reason, "closest": closest}
+
+
 def _displacement_form(curve: SplineCurve) -> dict:
     """Stops against a power law on a displacement curve (:func:`suggest_parametric`)."""
     x, f = curve.x, curve.force
@@ -379,6 +425,8 @@ def suggestion_element(nl: Nonlinearity, suggestion: Mapping, *,
         item.update(signed=True, exponent=_round(suggestion["exponent"]))
     elif kind == "coulomb":
         item["velocity_scale"] = _round(max(suggestion["velocity_scale"], 1e-12))
+    elif kind == "jenkins":    # the localisation's slip is on a 1.3x grid: searched again
+        item["slip"] = "auto"
     if nl.offset:
         item["offset"] = nl.offset
     return item
@@ -425,13 +473,17 @@ def suggested_config(raw_config: Mapping | None, basis: Sequence[Nonlinearity],
                 notes.append(f"{nl.name} ({c.argument}): {s.get('reason', 'no form fits')}")
                 continue
             items.append(item)
+            if s["kind"] == "jenkins":
+                notes.append(f"{nl.name} ({c.argument}): jenkins, {s['reason']}")
+                continue
             read = {k: s[k] for k in ("clearances", "clearance", "exponent", "velocity_scale")
                     if k in s}
             notes.append(f"{nl.name} ({c.argument}): {s['kind']}, read off the curve "
                          + ", ".join(f"{k} {_fmt(v)}" for k, v in read.items())
                          + f", coefficients {_fmt(s['values'])}, misfit {s['misfit']:.2g}")
     raw = dict(raw_config or {})
-    old = list(raw.get("nonlinearities") or [])
+    old = raw.get("nonlinearities")
+    old = list(old) if isinstance(old, list) else []    # nonlinearities: auto
     kept = [o for o in old if not (isinstance(o, dict) and o.get("kind") == "spline")]
     raw["nonlinearities"] = kept + [i for i in items if i is not None]
     text = yaml.safe_dump(raw, sort_keys=False, default_flow_style=None)
