@@ -39,7 +39,9 @@ def compare_levels(records: Sequence[RecordAnalysis], *, max_shift: float = 0.5)
     max_shift : float
         Resonances are followed from level to level: a resonance of the next level is the
         same one when each is the other's nearest and they differ by less than this
-        fraction (a hardening stop can move a resonance by tens of percent).
+        fraction (a hardening stop can move a resonance by tens of percent). A resonance
+        not found at one level (damped into its neighbours, or below the scatter of a
+        ragged BLA) is followed on from where it was last seen.
 
     Returns
     -------
@@ -56,7 +58,11 @@ def compare_levels(records: Sequence[RecordAnalysis], *, max_shift: float = 0.5)
     base = recs[0].resonances
     tracks: list[list[Resonance | None]] = [[r] for r in base]
     for rec in recs[1:]:
-        alive = [(i, t[-1]) for i, t in enumerate(tracks) if t[-1] is not None]
+        # each track at its last sighting: a resonance lost at 40 N and back at 98 N is the
+        # same one (aircraft-like GVT: otherwise 9.85 Hz at 12 N ended at 40 N and its 98 N
+        # reading 9.48 Hz was taken for the 10.6 Hz mode's, a -10.6 % "shift")
+        alive = [(i, next(r for r in reversed(t) if r is not None))
+                 for i, t in enumerate(tracks)]
         pairs = _mutual_nearest([r.frequency_hz for _, r in alive],
                                 [r.frequency_hz for r in rec.resonances], max_shift)
         matched = {alive[k][0]: rec.resonances[j] for k, j in pairs.items()}

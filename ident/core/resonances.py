@@ -128,6 +128,7 @@ def find_resonances(frequency_hz: np.ndarray, G: np.ndarray, *,
         fit = (_sdof_fit(frequency_hz[lo:hi], G[lo:hi][:, outs], float(frequency_hz[pk]))
                if hi - lo >= 5 else None)
         if fit is not None:
+            fit = _narrowed(frequency_hz, G[:, outs], fit, lo, hi)
             out.append(Resonance(fit[0], fit[1], "sdof fit"))
             continue
         p2 = np.abs(G[:, outs]) ** 2
@@ -137,6 +138,28 @@ def find_resonances(frequency_hz: np.ndarray, G: np.ndarray, *,
         if hp is not None:
             out.append(Resonance(float(frequency_hz[pk]), hp, "half power"))
     return out
+
+
+def _narrowed(f_hz: np.ndarray, G: np.ndarray, fit: tuple[float, float], lo: int,
+              hi: int) -> tuple[float, float]:
+    """The second-order fit again on the lines within three half-power bandwidths of the
+    first fit's resonance (at least 4 lines each side, inside ``[lo, hi)``).
+
+    The first window is set by the peak's width at half its prominence in dB, which for a
+    lightly damped mode spans many half-power bandwidths: there the neighbours' tails and
+    antiresonances weigh on a fit that has one mode (aircraft-like GVT at 12 N: 13.02 Hz,
+    0.04 % for the 12.89 Hz, 0.5 % mode). Kept only when the narrower fit succeeds.
+    """
+    f_n, zeta = fit
+    df = float(np.median(np.diff(f_hz))) if f_hz.size > 1 else 1.0
+    half = max(4, int(np.ceil(3 * 2 * zeta * f_n / df)))
+    centre = int(np.argmin(np.abs(f_hz - f_n)))
+    a, b = max(lo, centre - half), min(hi, centre + half + 1)
+    if b - a >= 5 and (a, b) != (lo, hi):
+        again = _sdof_fit(f_hz[a:b], G[a:b], f_n)
+        if again is not None:
+            return again
+    return fit
 
 
 def _prominent_peaks(x: np.ndarray, min_prominence: float) -> list[tuple[int, float]]:
