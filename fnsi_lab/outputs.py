@@ -215,6 +215,13 @@ def json_safe(obj: Any, *, unknown: str = "str") -> Any:
         # long lists of plain numbers (spectra, FRFs) without a call per element
         if obj and all(type(v) in _PLAIN_NUMBERS for v in obj):
             return [v if type(v) is not float or math.isfinite(v) else None for v in obj]
+        if obj and isinstance(obj[0], list):   # nested numbers (FRFs): as one array
+            try:
+                arr = np.asarray(obj)
+            except ValueError:                 # ragged
+                arr = None
+            if arr is not None and arr.dtype.kind in "biuf":
+                return rec(arr)
         return [rec(v) for v in obj]
     if isinstance(obj, np.ndarray):
         if obj.dtype.kind in "biu":

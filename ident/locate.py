@@ -42,6 +42,7 @@ likely as the best`` when the same test cannot tell its residual from the best's
 
 from __future__ import annotations
 
+import itertools
 import re
 import time
 from dataclasses import dataclass, field, replace
@@ -327,14 +328,19 @@ def rank_locations(data, model, candidates: Sequence[Mapping[str, float]], *,
     q = motion.displacement[:, ::stride]                    # (R, N, c)
     qd = None if motion.velocity is None else motion.velocity[:, ::stride]
     t1 = time.perf_counter()
-    raw = []
-    for i, cand in enumerate(candidates):
+    vectors = []
+    for cand in candidates:
         L = np.zeros(len(chans))
         for ch, wgt in cand.items():
             if ch not in chans:
                 raise IdentError(f"candidate {location_name(cand)}: channel {ch!r} is not among "
                                  f"the outputs {chans}")
             L[chans.index(ch)] = wgt
+        vectors.append(L)
+    done = itertools.count(1)   # next() is atomic: the threads count without a lock
+
+    def reduction(L: np.ndarray) -> tuple[float, int]:
+        """The weighted residual one candidate's columns remove, and their count."""
         h = generic_columns(q @ L, None if qd is None else qd @ L)          # (R, Nf, s)
         H = (np.fft.rfft(h, axis=1)[:, motion.lines] / h.shape[1]).reshape(-1, h.shape[2])[keep]
         ns = H.shape[1]
@@ -353,9 +359,14 @@ def rank_locations(data, model, candidates: Sequence[Mapping[str, float]], *,
         schur = schur + ridge[:, None, None] * np.eye(schur.shape[1])
         sol = np.linalg.solve(schur, resid[..., None])
         red = float(np.real(np.sum(resid.conj() * sol[..., 0])))
-        raw.append((dict(cand), max(red, 0.0), 3 * ns))
         if progress is not None:
-            progress(i + 1)
+            progress(next(done))
+        return max(red, 0.0), 3 * ns
+
+    # independent candidates on two threads (FFTs and solves release the lock; 273
+    # SmallSat candidates 1.3 -> 0.7 s), the same numbers as one
+    raw = [(dict(cand), red, n_cols) for cand, (red, n_cols)
+           in zip(candidates, parallel_map(reduction, vectors))]
     t2 = time.perf_counter()
     return _verdicts(raw, rss_lin, F, nc, base.shape[2], weighted, model.order,
                      {"projection": t1 - t0, "candidates": t2 - t1})
@@ -504,9 +515,10 @@ def _f_test(rss_big: float, rss_small: float, df1: int, df2: int) -> tuple[float
 
 def _neg_log10_sf(fstat: float, df1: int, df2: int) -> float:
     """``-log10`` of the F-test p-value, capped at :data:`MAX_SIGNIFICANCE` (p underflows)."""
-    from scipy import stats
+    from scipy.special import fdtrc   # F survival function (scipy.stats: +0.35 s of import)
 
-    v = float(-stats.f.logsf(fstat, df1, df2) / np.log(10))
+    with np.errstate(divide="ignore"):
+        v = float(-np.log10(fdtrc(df1, df2, max(fstat, 0.0))))
     return MAX_SIGNIFICANCE if not np.isfinite(v) or v > MAX_SIGNIFICANCE else v
 
 

@@ -35,7 +35,6 @@ import numpy as np
 import scipy.fft as sfft
 import scipy.linalg as sla
 
-from fnsi_lab.ident.core.hysteresis import periodic_play_anchors
 from fnsi_lab.ident.errors import IdentError
 from fnsi_lab.ident.refine.modal import LowFrequency
 from fnsi_lab.ident.core.periodic import FrequencyData
@@ -352,6 +351,8 @@ class HarmonicBalance:
         columns = [a for a in range(self.s) if basis[self.column_element[a]].hysteretic]
         if not columns:
             return None
+        from fnsi_lab.ident.core.hysteresis import periodic_play_anchors   # numba: +0.2 s
+
         out = {}
         for a in columns:
             e = self.column_element[a]

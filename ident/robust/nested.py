@@ -275,7 +275,7 @@ def nested_test(model_nl: StateSpaceModel, data_nl: FrequencyData,
     -------
     NestedTest
     """
-    from scipy import stats
+    from scipy.special import fdtrc   # F survival function (scipy.stats: +0.35 s of import)
 
     w, how = _weights(data_nl)
     v_nl = weighted_residual(model_nl, data_nl, w)
@@ -285,7 +285,7 @@ def nested_test(model_nl: StateSpaceModel, data_nl: FrequencyData,
     stat = p = None
     if k_nl > k_lin and n_obs > k_nl and v_nl > 0:
         stat = float(((v_lin - v_nl) / (k_nl - k_lin)) / (v_nl / (n_obs - k_nl)))
-        p = float(stats.f.sf(stat, k_nl - k_lin, n_obs - k_nl))
+        p = float(fdtrc(k_nl - k_lin, n_obs - k_nl, max(stat, 0.0)))
         supported = p < significance
     else:
         supported = v_nl < v_lin
