@@ -7,7 +7,9 @@ Runs, through the public API (the same entry points as the CLI):
   location, its verdict, the margin to the next candidate and the time;
 - ``kind: spline`` on the SmallSat (12 and 24 knots): the clearances and contact stiffnesses
   read off the curve against the truth, then the suggested config run as is against the
-  known-form answer.
+  known-form answer;
+- the whole discovery on the SmallSat, in one process and as the four CLI commands of
+  docs/discovery.md's worked example.
 
 Usage: ``python bench/locate_spline.py [--out DIR] [--quick]`` (``--quick``: 98 N only, 12
 knots). Prints markdown tables for bench/RESULTS.md.
@@ -125,6 +127,33 @@ def bench_chain(folder: Path) -> list[str]:
             f"{where.located.name if where.located else '-'} |"]
 
 
+def bench_cli_chain(folder: Path, runs: int = 3) -> list[str]:
+    """The worked example of docs/discovery.md as a user runs it: four ``fnsi-lab``
+    commands, each a process with its start-up, MCAP read and result file (seconds)."""
+    ss, cli = folder / "smallsat.mcap", [sys.executable, "-m", "fnsi_lab"]
+    sugg = folder / "chain-nc2.yaml"
+    steps = [("analyse", ["analyse", ss, "--config", "smallsat39"]),
+             ("locate", ["locate", ss, "--config", "smallsat39"]),
+             ("spline", ["ident", ss, "--config", "smallsat39-spline", "--order", "22",
+                         "--suggest", sugg, "--force"]),
+             ("parametric", ["ident", ss, "--config", sugg, "--order", "22"])]
+    rows = ["| run | analyse | locate | spline (12 knots) | parametric (searched gaps) | total |",
+            "|---|---|---|---|---|---|"]
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1"}
+    for run in range(runs):
+        times = []
+        for name, args in steps:
+            t = time.perf_counter()
+            r = subprocess.run(cli + [str(a) for a in args], capture_output=True, text=True,
+                               env=env)
+            times.append(time.perf_counter() - t)
+            if r.returncode != 0:
+                raise SystemExit(f"fnsi-lab {name} failed: {r.stderr.strip()}")
+        rows.append(f"| {run + 1} | " + " | ".join(f"{v:.2f}" for v in times)
+                    + f" | {sum(times):.2f} |")
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default=None, help="folder for the recordings (default: temporary)")
@@ -140,6 +169,8 @@ def main() -> None:
     print("\n".join(bench_spline(folder, (12,) if args.quick else (12, 24))))
     print()
     print("\n".join(bench_chain(folder)))
+    print()
+    print("\n".join(bench_cli_chain(folder)))
 
 
 if __name__ == "__main__":
