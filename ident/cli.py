@@ -335,9 +335,11 @@ def _print_curves(res: dict, out=None) -> None:
     loc = res.get("localisation")
     if loc and loc.get("candidates"):   # nonlinearities: auto
         best = loc["candidates"][0]
+        sig = best.get("significance")   # None (JSON null) for a Jenkins element's ranking
         print(f"nonlinearities: auto: located {best['name']} ({best['verdict']}, score "
-              f"{best['score']:.3g}, -log10 p {best['significance']:.1f}; "
-              f"{len(loc['candidates'])} candidates: the JSON's localisation)", file=out)
+              f"{best['score']:.3g}" + (f", -log10 p {sig:.1f}" if sig is not None else "")
+              + f"; {len(loc['candidates'])} candidates, form {loc.get('form', 'generic')}: "
+              "the JSON's localisation)", file=out)
     curves = [c["curve"] for c in res.get("coefficients", []) if c.get("curve")]
     if not curves:
         return

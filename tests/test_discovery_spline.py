@@ -263,3 +263,18 @@ def test_no_form_is_read_off_a_curve_the_data_do_not_determine():
     c.suggestion = undetermined
     mapping, _ = suggested_config({"band_hz": [1, 10], "nonlinearities": "auto"}, (nl,), [c])
     assert mapping["nonlinearities"] == []
+
+
+def test_auto_summary_prints_a_jenkins_localisation():
+    """A Jenkins element's ranking has no F-test (`significance` null in the JSON): the
+    summary of `nonlinearities: auto` printed it with a format that crashed the command
+    after the identification (Silverbox, `nonlinearities: auto`)."""
+    import io
+
+    from fnsi_lab.ident.cli import _print_curves
+
+    res = {"localisation": {"form": "jenkins", "candidates": [
+        {"name": "y0", "verdict": "located", "score": 0.96, "significance": None}]}}
+    out = io.StringIO()
+    _print_curves(res, out)
+    assert "located y0 (located, score 0.96; 1 candidates, form jenkins" in out.getvalue()
