@@ -6,6 +6,8 @@ Run::
     python bench/aircraft_validation.py --levels 12 55 98
     python bench/aircraft_validation.py --joint joint     # Coulomb + cubic instead of Jenkins
     python bench/aircraft_validation.py --joint jenkins-stop   # Jenkins + a stop, all auto
+    python bench/aircraft_validation.py --decide-on next  # the nested test's simulation
+                                                          # check on the next level's record
 
 Steps (the same entry points as the command line):
 
@@ -20,6 +22,11 @@ Steps (the same entry points as the command line):
 4. ``fnsi_lab.validate_model``: each level's two answers simulated on the *next* level's
    record (the highest level on the one below): per output the error of the nonlinear
    model, of its underlying linear model, and of the linear fit, dB below the output.
+
+``--decide-on next`` identifies each level with ``validation=`` the next level's record (the
+highest level: the one below), so the nested test keeps the nonlinear terms only if they
+predict that record at least as well as the linear fit; step 4 then validates on a third
+record, never the one the decision read (the level after next, else the one below).
 
 Writes ``bench/out/aircraft_validation.json`` (``-<joint>.json`` for another ``--joint``); the
 tables go to ``bench/RESULTS.md`` by hand.
@@ -61,6 +68,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--joint", choices=("jenkins", "jenkins-stop", "joint"), default="jenkins",
                     help="the nonlinear config: aircraft-jenkins.yaml, aircraft-jenkins-stop.yaml "
                          "or aircraft-joint.yaml")
+    ap.add_argument("--decide-on", choices=("own", "next"), default="own",
+                    help="the record of the nested test's simulation check: the identified "
+                         "one (default) or the next level's")
     args = ap.parse_args(argv)
     rows = write_campaign(args.work, args.levels, force=True)
     model = aircraft_model()
@@ -69,12 +79,23 @@ def main(argv: list[str] | None = None) -> int:
     free = np.asarray(model.joint_free_modes_hz())
     free = free[(free > 2) & (free < 15)]
     answers = {}
-    for row in rows:
+    decided_on, validated_on = {}, {}
+    for i, row in enumerate(rows):
+        if args.decide_on == "next" and len(rows) >= 3:
+            d = i + 1 if i + 1 < len(rows) else i - 1
+            decided_on[i] = rows[d]
+            validated_on[i] = rows[i + 2] if i + 2 < len(rows) else rows[min(i, d) - 1]
+        else:
+            validated_on[i] = rows[i + 1] if i + 1 < len(rows) else rows[i - 1]
+    for i, row in enumerate(rows):
         path = args.work / row["file"]
+        other = decided_on.get(i)
         for kind in ("linear", args.joint):
             t0 = time.perf_counter()
             # a parameter the data cannot tell leaves its element out (nonlinear_vs_linear)
-            res = fnsi_lab.identify(str(path), config=str(args.work / f"aircraft-{kind}.yaml"))
+            res = fnsi_lab.identify(str(path), config=str(args.work / f"aircraft-{kind}.yaml"),
+                                    validation=(None if other is None or kind == "linear"
+                                                else str(args.work / other["file"])))
             answers[(row["level_n_rms"], "linear" if kind == "linear" else "joint")] = res
             print(f"{row['level_n_rms']:5g} N {kind:6s}: order {res.order}, "
                   f"{len(res.modes)} physical modes, {time.perf_counter() - t0:.1f} s",
@@ -83,11 +104,13 @@ def main(argv: list[str] | None = None) -> int:
     table = []
     for i, row in enumerate(rows):
         level = row["level_n_rms"]
-        other = rows[i + 1] if i + 1 < len(rows) else rows[i - 1]
+        other = validated_on[i]
         lin, nl = answers[(level, "linear")], answers[(level, "joint")]
         nl_doc = nl.to_json()
         nvl = nl_doc.get("nonlinear_vs_linear") or {}
         entry = {"level_n_rms": level, "validated_on_n_rms": other["level_n_rms"],
+                 "decided_on_n_rms": (decided_on[i]["level_n_rms"] if i in decided_on
+                                      else level),
                  "refused": [r["name"] for r in nvl.get("refused") or []],
                  "linear": {"order": lin.order, "modes": _modes(lin, truth),
                             "damping": {float(m["frequency_hz"]): m["damping_ratio"]
@@ -109,8 +132,9 @@ def main(argv: list[str] | None = None) -> int:
             except Exception as exc:  # noqa: BLE001 - a failed validation is a result here
                 entry[kind]["validation"] = {"error": str(exc)}
         table.append(entry)
-    out = ROOT / "out" / ("aircraft_validation.json" if args.joint == "jenkins"
-                          else f"aircraft_validation-{args.joint}.json")
+    suffix = ("" if args.joint == "jenkins" else f"-{args.joint}") + (
+        "-next" if args.decide_on == "next" else "")
+    out = ROOT / "out" / f"aircraft_validation{suffix}.json"
     out.parent.mkdir(exist_ok=True)
     from fnsi_lab.outputs import dumps
 
@@ -132,6 +156,8 @@ def main(argv: list[str] | None = None) -> int:
               + " ".join(f"{c['name']}={c['value']:.3g}({c.get('verdict') or '?'})"
                          for c in nl["coefficients"])
               + f" [{nl['decision']}] slip {nl['slip_m']}"
+              + (f" decided on {e['decided_on_n_rms']:g} N"
+                 if e["decided_on_n_rms"] != e["level_n_rms"] else "")
               + f" | on {e['validated_on_n_rms']:g} N: nl {val(nl, 'error_db')}, "
                 f"its linear {val(nl, 'linear_error_db')}, linear fit {val(lin, 'linear_error_db')}")
         if nl.get("statement"):

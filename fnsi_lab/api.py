@@ -95,7 +95,7 @@ def identify(source: Any, config: Any = None, *, order: int | None = None,
              orders: Any = None, reduce_at: int | None = None, max_order: int | None = None,
              block_rows: int | None = None, progress: Any = False,
              samples_per_period: int | None = None,
-             blas_threads: int | None = 1) -> "Identification":
+             blas_threads: int | None = 1, validation: Any = None) -> "Identification":
     """Identify the underlying linear modes and nonlinear coefficients of a structure.
 
     Parameters
@@ -132,6 +132,12 @@ def identify(source: Any, config: Any = None, *, order: int | None = None,
         sweep gain nothing from threads, and threads oversubscribe a small machine: the
         README example took 23 s with the default OpenBLAS threads and 1.3 s with one, on
         a loaded 2-core machine. The answer does not depend on it (docs/method.md §1.3).
+    validation : str, path, mapping or IdentInput, optional
+        Another record of the same structure and channels (another force level, another
+        realisation). The nested test's simulation check (docs/robust.md, "Nonlinear against
+        linear") then predicts this record instead of the identified one: the nonlinear terms
+        are kept only if the nonlinear model predicts no output of it worse than the linear
+        fit of the identified record, and has a steady state under its force.
 
     Returns
     -------
@@ -178,11 +184,21 @@ def identify(source: Any, config: Any = None, *, order: int | None = None,
                               max_order=max_order, block_rows=block_rows,
                               driving_point=(_recorded_driving_point(source) if cfg is None
                                              else None))
+    other = None
+    if validation is not None:   # its channels and rate checked before any work
+        from fnsi_lab.ident.linear_comparison import validation_input
+
+        rc = request.config
+        other = _as_input(validation, samples_per_period or (cfg.samples_per_period if cfg
+                                                              else None))
+        validation_input(other, rc.outputs or inp.output_channels,
+                         [i.name for i in rc.inputs] or inp.input_channels, inp.sample_rate_hz)
     load_s = time.perf_counter() - t0
     with restored_blas_threads():
         if blas_threads is not None:
             limit_blas_threads(check_order(blas_threads, "blas_threads"))
-        return identify_request(inp, request, progress=progress, spent_s={"load": load_s})
+        return identify_request(inp, request, progress=progress, spent_s={"load": load_s},
+                                validation=other)
 
 
 def analyse(sources: Any, config: Any = None, *, band_hz: Any = None, alpha: float = 0.01,

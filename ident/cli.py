@@ -22,6 +22,7 @@ examples:
   fnsi-lab ident test.mcap --config ident.yaml --order 10
   fnsi-lab ident data.npz --config ident.yaml --auto --orders 2:20
   fnsi-lab ident data.mat --config ident.yaml --order 6 --max-order 20
+  fnsi-lab ident rms55.mcap --config joint.yaml --auto --validation rms69.mcap
 
 INPUT: an fnsi-lab MCAP recording, or .npz/.mat with u (n_samples, n_inputs),
 y (n_samples, n_outputs), fs, optional N, channels, input_channels (see docs/ident.md).
@@ -51,6 +52,10 @@ def add_ident_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--suggest", default=None, metavar="OUT.yaml",
                         help="kind: spline elements: write the config with each replaced by "
                              "the parametric form its curve suggests (docs/discovery.md)")
+    parser.add_argument("--validation", type=opt.INPUT, default=None, metavar="RECORD",
+                        help="another record of the structure (e.g. the next force level): "
+                             "the nonlinear terms are kept only if the model predicts it at "
+                             "least as well as the linear fit (docs/robust.md)")
     parser.add_argument("--force", action="store_true",
                         help="replace an existing --json / --suggest file")
     parser.add_argument("--quiet", action="store_true", help="no summary on stdout")
@@ -302,12 +307,12 @@ def run_ident(args: argparse.Namespace) -> int:
             raise IdentError("no model order: give --order N (or 'order:' in the config), "
                              "or --auto for the robust pipeline")
         result = fnsi_lab.identify(args.input, config, order=order, max_order=args.max_order,
-                                   block_rows=args.block_rows)
+                                   block_rows=args.block_rows, validation=args.validation)
     else:
         show = not args.quiet and args.json_out != "-"
         result = fnsi_lab.identify(args.input, config, orders=args.orders or None,
                                    reduce_at=args.reduce_at, block_rows=args.block_rows,
-                                   progress=show)
+                                   progress=show, validation=args.validation)
     res = result.to_json()
     if not args.quiet and args.json_out != "-":
         if (res.get("periods") or {}).get("statement"):

@@ -87,7 +87,8 @@ def identify_input(inp: IdentInput, cfg: IdentConfig, *, order: int | None = Non
 
 
 def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = None,
-                     spent_s: Mapping[str, float] | None = None) -> Identification:
+                     spent_s: Mapping[str, float] | None = None,
+                     validation: IdentInput | None = None) -> Identification:
     """Identify with resolved settings (:func:`ident.request.resolve_request`).
 
     Parameters
@@ -101,6 +102,11 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
     spent_s : mapping, optional
         Seconds spent before, per stage (``{"load": 0.4}``: reading the file), added to the
         result's timings and total.
+    validation : IdentInput, optional
+        Another record of the same structure (another level, another realisation): the
+        nested test's simulation check predicts it instead of the identified record
+        (:func:`ident.linear_comparison.simulated_against_linear`), and runs even where
+        every coefficient is identified.
 
     Returns
     -------
@@ -140,7 +146,8 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
     nested = None
     if session.config.nonlinearities and compare:
         verdicts = [c.get("verdict") for c in coefficient_summaries(spectra, session)]
-        if compare == "auto" and verdicts and all(v == "identified" for v in verdicts):
+        if (compare == "auto" and validation is None and verdicts
+                and all(v == "identified" for v in verdicts)):
             # every coefficient determined: the test would only confirm it (chain, SmallSat,
             # Silverbox); it costs a second identification (docs/ident.md)
             from fnsi_lab.ident.robust.nested import weighted_residual
@@ -158,7 +165,8 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
             nested = compare_with_linear(
                 session, model, answer_modes(answer, output_error),
                 [c["verdict"] for c in coefficient_summaries(spectra, session)], order=order,
-                sweep=sweep, reduce_at=reduce_at, max_order=max_order, block_rows=block_rows)
+                sweep=sweep, reduce_at=reduce_at, max_order=max_order, block_rows=block_rows,
+                validation=validation)
             session.timings_s["linear_fit"] = time.perf_counter() - t3
     session.timings_s["total"] = time.perf_counter() - t0
     for stage, seconds in (spent_s or {}).items():

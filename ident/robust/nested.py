@@ -30,6 +30,7 @@ lower, and no p-value is given.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
@@ -186,6 +187,12 @@ class NestedTest:
                        decision="linear" if rejected else self.decision)
 
     @property
+    def _simulated_on(self) -> str:
+        """Which record the simulation check predicted, in words."""
+        record = (self.simulation or {}).get("record")
+        return "its own record" if not record else f"the validation record {Path(record).name}"
+
+    @property
     def statement(self) -> str:
         """One line for the summary and the JSON."""
         ratio = (self.residual_linear / self.residual_nonlinear if self.residual_nonlinear
@@ -204,8 +211,15 @@ class NestedTest:
                         if lost else "",
                         f"adds {', '.join(f'{f:.4g}' for f in added)} Hz" if added else "")
                     if part) + ": check them")
+            checked = ""
+            if self.simulation and self.simulation.get("record"):
+                rows = self.simulation.get("outputs") or []
+                checked = (f"; simulated on {self._simulated_on} it predicts every output at "
+                           "least as well as the linear fit (" + ", ".join(
+                               f"{r['name']} {r['error_db']:+.1f} dB against "
+                               f"{r['linear_fit_error_db']:+.1f} dB" for r in rows) + ")")
             return (f"the nonlinear terms are supported: noise-weighted residual {what} "
-                    f"({test}){extra}")
+                    f"({test}){extra}{checked}")
         if self.simulation_rejected:
             sim = self.simulation or {}
             if not sim.get("converged", True):
@@ -218,8 +232,8 @@ class NestedTest:
                     f"against {rows[name]['linear_fit_error_db']:+.1f} dB)"
                     for name in sim["worse"])
             return (f"the nonlinear terms lower the noise-weighted residual ({what}, {test}) "
-                    f"but the nonlinear model, simulated on its own record, {why}: the modes "
-                    f"are the linear fit's (order {self.order_linear})")
+                    f"but the nonlinear model, simulated on {self._simulated_on}, {why}: the "
+                    f"modes are the linear fit's (order {self.order_linear})")
         if self.undetermined and self.p_value is not None and self.p_value < self.significance:
             return (f"the nonlinear terms lower the noise-weighted residual ({what}, {test}) "
                     f"but no coefficient is determined by the data (every verdict: not "
