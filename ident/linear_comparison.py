@@ -64,15 +64,15 @@ def compare_with_linear(session: IdentSession, model: StateSpaceModel, modes: Se
                        verdicts=verdicts, linear=linear, evaluation=how)
     if test.supported:   # and does it predict its own record better? (docs/ident.md)
         test = test.require_simulation(
-            simulated_against_linear(session, model, linear.model, record=validation))
+            simulated_against_linear(session, model, linear.model, validation=validation))
     return test
 
 
 def simulated_against_linear(session: IdentSession, model: StateSpaceModel,
                              linear_model: StateSpaceModel,
-                             record: IdentInput | None = None) -> dict:
+                             validation: IdentInput | None = None) -> dict:
     """The nonlinear model and the linear fit simulated on the session's own record (or on
-    ``record``), as ``fnsi-lab validate`` simulates another record: harmonic balance over
+    ``validation``, another record), as ``fnsi-lab validate`` simulates another record: harmonic balance over
     every line, the nonlinear forces reading the model's own motion
     (:mod:`ident.refine.validation`).
 
@@ -96,10 +96,10 @@ def simulated_against_linear(session: IdentSession, model: StateSpaceModel,
 
     cfg, inp, data = session.config, session.input, session.data
     name = None
-    if record is not None:
-        inp = validation_input(record, data.output_names, data.input_names,
+    if validation is not None:
+        inp = validation_input(validation, data.output_names, data.input_names,
                                session.input.sample_rate_hz)
-        name = str(record.path or "the validation record")
+        name = str(validation.path or "the validation record")
     transient = (cfg.transient_periods if cfg.transient_periods is not None
                  else inp.transient_periods)
     try:
