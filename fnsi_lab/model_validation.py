@@ -69,6 +69,18 @@ class ValidationResult:
                           "simulation": dict(sim.info)})
 
 
+def load_result(result: Any) -> tuple[dict, str]:
+    """The result as a dict and a name for messages.
+
+    Raises
+    ------
+    IdentDataError
+        A missing, unreadable or binary file, invalid JSON, or another command's JSON
+        (one line naming the file and the command that wrote it).
+    """
+    return _load_result(result)
+
+
 def _load_result(result: Any) -> tuple[dict, str]:
     """The result as a dict and a name for messages."""
     if isinstance(result, Mapping):
@@ -81,6 +93,11 @@ def _load_result(result: Any) -> tuple[dict, str]:
     except FileNotFoundError:
         raise IdentDataError(f"{path}: file not found (fix: give the JSON that "
                              "fnsi-lab ident --json wrote)") from None
+    except UnicodeDecodeError:
+        # a recording or an array file given as RESULT (the arguments swapped, say)
+        raise IdentDataError(f"{path}: not a JSON result (a binary file, not text; fix: give "
+                             "the JSON that fnsi-lab ident --json wrote first, then the "
+                             "record: fnsi-lab validate RESULT.json RECORD)") from None
     except OSError as exc:
         raise IdentDataError(f"{path}: cannot read: {exc}") from None
     try:
@@ -89,7 +106,21 @@ def _load_result(result: Any) -> tuple[dict, str]:
         raise IdentDataError(f"{path}: not a JSON result ({exc.msg} at line {exc.lineno})") from None
     if not isinstance(data, dict):
         raise IdentDataError(f"{path}: not an fnsi-lab result (expected a JSON object)")
+    from fnsi_lab.result_kind import not_an_ident_result
+
+    refusal = not_an_ident_result(data, str(path))
+    if refusal:
+        raise IdentDataError(refusal)
     return data, str(path)
+
+
+def _rejection(nested: Mapping[str, Any]) -> str:
+    """Why ident kept the linear fit: the result's own ``nonlinear_vs_linear.statement``
+    (an F-test, the simulation check, the parameter search or the localisation: docs/ident.md),
+    else the decision's field."""
+    statement = str(nested.get("statement") or "").strip()
+    return (f"nonlinear_vs_linear: {statement}" if statement
+            else "nonlinear_vs_linear.decision: linear")
 
 
 def _declares_period(path: str) -> bool:
@@ -123,7 +154,8 @@ def _units(path: str | None, names: list[str], quantity: str) -> list[str]:
 def validate_model(result: Any, record: Any, *, method: str = "auto",
                    samples_per_period: int | None = None,
                    transient_periods: int | None = None,
-                   oversample: int = 8, simulate: str = "answer") -> ValidationResult:
+                   oversample: int = 8, simulate: str = "answer",
+                   result_name: str | None = None) -> ValidationResult:
     """Simulate an identified model on a record and measure its output error.
 
     Parameters
@@ -146,6 +178,9 @@ def validate_model(result: Any, record: Any, *, method: str = "auto",
         ``answer`` (default): the result's answer, i.e. the linear fit when the nested test
         found the nonlinear terms not supported (``nonlinear_vs_linear.decision`` linear);
         ``nonlinear``: the nonlinear model with its basis whatever that decision.
+    result_name : str, optional
+        The result's name in messages and in ``info['result']`` (default: its path, or
+        ``result`` for a dict).
 
     Returns
     -------
@@ -165,7 +200,11 @@ def validate_model(result: Any, record: Any, *, method: str = "auto",
 
     if method not in ("auto", "balance", "time"):
         raise IdentError(f"method {method!r}: use auto, balance or time")
+    if transient_periods is not None and int(transient_periods) < 0:
+        raise IdentError(f"transient_periods {transient_periods} is negative (fix: the number "
+                         "of leading periods to drop, 0 or more)")
     res, res_name = _load_result(result)
+    res_name = result_name or res_name
     model = model_from_json(res, res_name)
     basis = basis_from_json(res.get("nonlinearities"), res_name)
     notes: list[str] = []
@@ -185,14 +224,14 @@ def validate_model(result: Any, record: Any, *, method: str = "auto",
                      "kept): the nonlinear model's error is the linear model's")
         linear_answer = True
     elif decided_linear and fit is not None and simulate == "answer":
-        # the nested test found the nonlinear terms unsupported: the answer is the linear fit
-        notes.append(f"the nonlinear terms {names} are not supported by the data "
-                     "(nonlinear_vs_linear): the answer is the linear fit, whose error every "
-                     "column gives (--model nonlinear simulates the nonlinear model anyway)")
+        # ident kept the linear fit (F-test, simulation check, parameter search...): say why
+        notes.append(f"the nonlinear terms {names} were not kept ({_rejection(nested)}): the "
+                     "answer is the linear fit, whose error every column gives (--model "
+                     "nonlinear simulates the nonlinear model anyway)")
         model, linear_answer = fit, True
     elif decided_linear:
-        notes.append(f"the nonlinear terms {names} are not supported by the data "
-                     "(nonlinear_vs_linear); the nonlinear model is simulated all the same")
+        notes.append(f"the nonlinear terms {names} were not kept ({_rejection(nested)}); the "
+                     "nonlinear model is simulated all the same")
     if linear_answer:
         basis = ()
     if len(model.input_names) != model.n_inputs + sum(len(nl.coefficient_names) for nl in basis):
@@ -215,7 +254,9 @@ def validate_model(result: Any, record: Any, *, method: str = "auto",
     try:
         inp = select_channels(inp, outputs=outputs, inputs=inputs or None)
     except IdentError as exc:
-        raise type(exc)(f"{rec_name}: {exc} (the model was identified on outputs {outputs} "
+        text = str(exc)   # it may name the file already: name it once
+        where = "" if text.startswith(rec_name) else f"{rec_name}: "
+        raise type(exc)(f"{where}{text} (the model was identified on outputs {outputs} "
                         f"and inputs {inputs})") from None
     if abs(inp.sample_rate_hz - model.sample_rate_hz) > 1e-9 * model.sample_rate_hz:
         raise IdentDataError(f"{rec_name}: sampled at {inp.sample_rate_hz:g} Hz but the model at "
@@ -237,7 +278,8 @@ def validate_model(result: Any, record: Any, *, method: str = "auto",
             warnings.simplefilter("always", IdentWarning)
             data = prediction_data(inp, basis, band, quantity, proc,
                                    transient_periods=transient, time_base=model.time_base,
-                                   bilinear_period_s=model.bilinear_period_s)
+                                   bilinear_period_s=model.bilinear_period_s,
+                                   allow_zero_basis=True)
         notes += [str(w.message) for w in caught]
         sim = balance_outputs(model, basis, data, band)
         fit_lines = None if fit is None else balance_outputs(fit, (), data, band).linear

@@ -20,7 +20,7 @@ import math
 import os
 import tempfile
 from pathlib import Path
-from typing import Any, Iterable, Iterator
+from typing import Any, Iterable, Iterator, Mapping
 
 import numpy as np
 
@@ -33,7 +33,9 @@ class OutputExistsError(FnsiLabError, FileExistsError):
 
 def check_output_path(path: str | os.PathLike[str] | None, *, force: bool = False,
                       option: str = "--out",
-                      inputs: Iterable[str | os.PathLike[str] | None] = ()) -> Path:
+                      inputs: Iterable[str | os.PathLike[str] | None] = (),
+                      outputs: Mapping[str, str | os.PathLike[str] | None] | None = None
+                      ) -> Path:
     """Validate an output path before any work is done: the one check every command uses.
 
     Parameters
@@ -47,6 +49,10 @@ def check_output_path(path: str | os.PathLike[str] | None, *, force: bool = Fals
     inputs : iterable of path-like
         The command's input files (recordings, configs, results); an output that is one of
         them is refused even with ``force`` (None entries are ignored).
+    outputs : mapping of str to path-like, optional
+        The command's other outputs, by option (``{"--json": "val.json"}``; None and '-'
+        entries are ignored): two outputs under one name would leave only the one written
+        last, so one that is also ``path`` is refused, ``force`` or not.
 
     Returns
     -------
@@ -55,7 +61,8 @@ def check_output_path(path: str | os.PathLike[str] | None, *, force: bool = Fals
     Raises
     ------
     DataFileError
-        Empty path, a directory, an input of the command, or a parent folder that does not
+        Empty path, a directory, an input or another output of the command, or a parent
+        folder that does not
         exist or cannot be written (tried with a temporary file: permission bits say
         nothing for root or on a read-only file system).
     OutputExistsError
@@ -71,6 +78,11 @@ def check_output_path(path: str | os.PathLike[str] | None, *, force: bool = Fals
     if not parent.is_dir():
         raise DataFileError(f"{option} {p}: folder {parent} does not exist (fix: create it)")
     _refuse_inputs(p, option, inputs)
+    for other_option, other in (outputs or {}).items():
+        if other is not None and os.fspath(other) != "-" and _same_file(p, other):
+            raise DataFileError(f"{option} {p}: is also the {other_option} output of this "
+                                "command; nothing was written (fix: give each output its own "
+                                "name)")
     if p.exists() and not force:
         raise OutputExistsError(f"{option} {p}: file exists; nothing was written "
                                 "(fix: choose another name, or add --force to replace it)")
@@ -138,17 +150,21 @@ def _refuse_inputs(p: Path, option: str,
     """An output that is one of the command's inputs would destroy it: refused, --force
     or not."""
     for given in inputs:
-        if given is None or not str(os.fspath(given)).strip():
-            continue
-        other = Path(os.fspath(given))
-        try:
-            same = (os.path.samefile(p, other) if p.exists() and other.exists()
-                    else p.resolve() == other.resolve())
-        except OSError:
-            same = False
-        if same:
-            raise DataFileError(f"{option} {p}: is also an input of this command ({other}); "
+        if given is not None and _same_file(p, given):
+            raise DataFileError(f"{option} {p}: is also an input of this command ({given}); "
                                 "nothing was written (fix: give the output another name)")
+
+
+def _same_file(p: Path, given: str | os.PathLike[str]) -> bool:
+    """``p`` and ``given`` name the same file (existing or not; '' names none)."""
+    if not str(os.fspath(given)).strip():
+        return False
+    other = Path(os.fspath(given))
+    try:
+        return (os.path.samefile(p, other) if p.exists() and other.exists()
+                else p.resolve() == other.resolve())
+    except OSError:
+        return False
 
 
 def _require_writable(folder: Path, what: str) -> None:

@@ -21,18 +21,28 @@ has no steady state on the record (the linear figures are still printed and writ
 
 
 def _validate(args: argparse.Namespace) -> int:
-    from fnsi_lab.model_validation import figure_validation, validate_model
+    from fnsi_lab.model_validation import figure_validation, load_result, validate_model
     from fnsi_lab.outputs import atomic_output, check_output_path, write_json
 
-    for path, option in ((args.json_out, "--json"), (args.svg, "--svg")):
-        if path is not None and path != "-":  # '' is refused there, not ignored
-            check_output_path(path, force=args.force, option=option,
-                              inputs=[args.result, args.record])
+    if args.transient_periods is not None and args.transient_periods < 0:
+        from fnsi_lab.errors import ConfigError
+
+        raise ConfigError(f"{args.transient_periods}: a count of periods cannot be negative",
+                          field="--transient-periods",
+                          fix="give the number of leading periods to drop, 0 or more")
+    if args.json_out is not None and args.json_out != "-":  # '' is refused there, not ignored
+        check_output_path(args.json_out, force=args.force, option="--json",
+                          inputs=[args.result, args.record])
+    if args.svg is not None:
+        check_output_path(args.svg, force=args.force, option="--svg",
+                          inputs=[args.result, args.record], outputs={"--json": args.json_out})
+    result, name = load_result(args.result)   # a wrong RESULT: one line, before the progress
     if not args.quiet:
         print(f"validating {args.result} on {args.record} ...", file=sys.stderr)
-    v = validate_model(args.result, args.record, method=args.method,
+    v = validate_model(result, args.record, method=args.method,
                        samples_per_period=args.samples_per_period,
-                       transient_periods=args.transient_periods, simulate=args.model)
+                       transient_periods=args.transient_periods, simulate=args.model,
+                       result_name=name)
     _print(v)
     if args.json_out:
         write_json(v.to_json(), args.json_out)

@@ -113,10 +113,11 @@ def run_analyse(args: argparse.Namespace) -> int:
                           inputs=[*args.inputs, args.config])
     if args.rrd is not None:
         check_output_path(args.rrd, force=args.force, option="--rrd",
-                          inputs=[*args.inputs, args.config, args.json_out])
+                          inputs=[*args.inputs, args.config], outputs={"--json": args.json_out})
     if args.report is not None:
         check_output_path(args.report, force=args.force, option="--report",
-                          inputs=[*args.inputs, args.config, args.json_out, args.rrd])
+                          inputs=[*args.inputs, args.config],
+                          outputs={"--json": args.json_out, "--rrd": args.rrd})
     if not 0 < args.alpha < 1:
         from fnsi_lab.errors import ConfigError
         raise ConfigError(f"--alpha {args.alpha} is not a probability", field="--alpha",

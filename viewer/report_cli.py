@@ -46,7 +46,8 @@ def load_report_input(source: str | Path, *, config: str | None = None, orders: 
     Raises
     ------
     DataFileError
-        Missing or unreadable file, or an unsupported file type.
+        Missing or unreadable file, another command's JSON (locate, validate, analyse), or
+        an unsupported file type.
     """
     import json
 
@@ -61,6 +62,10 @@ def load_report_input(source: str | Path, *, config: str | None = None, orders: 
         except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
             raise DataFileError(f"{src}: not a readable JSON result ({exc}); write one with "
                                 "`fnsi-lab ident REC.mcap --auto --json RESULT.json`") from None
+        from fnsi_lab.result_kind import json_kind, not_an_ident_result
+
+        if isinstance(result, dict) and json_kind(result) not in ("ident", None):
+            raise DataFileError(str(not_an_ident_result(result, str(src))))  # locate, validate...
         if not isinstance(result, dict) or "order" not in result:
             raise DataFileError(f"{src}: not an identification result (no 'order'); write one "
                                 "with `fnsi-lab ident REC.mcap --auto --json RESULT.json`")

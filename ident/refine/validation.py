@@ -147,7 +147,8 @@ def prediction_band(band_hz: tuple[float, float], sample_rate_hz: float,
 def prediction_data(inp: Any, basis: Sequence[Nonlinearity], band_hz: tuple[float, float],
                     quantity: OutputQuantity, processing: Mapping[str, Any], *,
                     transient_periods: int | None, time_base: TimeBase,
-                    bilinear_period_s: float | None) -> FrequencyData:
+                    bilinear_period_s: float | None,
+                    allow_zero_basis: bool = False) -> FrequencyData:
     """A periodic record prepared for :func:`balance_outputs`: the lines of
     :func:`prediction_band`, the basis channels' motion, and the record-to-spectrum
     settings the model was identified with (``processing``, the result's ``processing``:
@@ -169,12 +170,58 @@ def prediction_data(inp: Any, basis: Sequence[Nonlinearity], band_hz: tuple[floa
     transient_periods : int or None
     time_base, bilinear_period_s
         The model's time base.
+    allow_zero_basis : bool
+        False (``ident``'s own check): a basis function identically zero on the record's
+        measured motion is refused (:class:`ident.errors.IdentError`, from
+        :func:`ident.core.extended_input.with_basis`). True (``fnsi-lab validate``): the data
+        hold the basis channels' motion but no basis columns (the balance reads the
+        model's own motion, never the measured one), and such a function is only an
+        :class:`ident.errors.IdentWarning`: a stop that never closes on a low-level record
+        predicts no contact force there, a valid prediction.
     """
+    if allow_zero_basis and basis:
+        data = _prepare(inp, (), band_hz, quantity, processing,
+                               transient_periods=transient_periods, time_base=time_base,
+                               bilinear_period_s=bilinear_period_s, motion_for=basis)
+        _warn_zero_basis(data, basis)
+        return data
+    return _prepare(inp, basis, band_hz, quantity, processing,
+                    transient_periods=transient_periods, time_base=time_base,
+                    bilinear_period_s=bilinear_period_s)
+
+
+def _warn_zero_basis(data: FrequencyData, basis: Sequence[Nonlinearity]) -> None:
+    """An :class:`ident.errors.IdentWarning` naming the basis functions that are identically
+    zero on the record's measured motion (``data.motion``)."""
+    import warnings
+
+    from fnsi_lab.ident.core.basis import coefficient_names
+    from fnsi_lab.ident.core.extended_input import basis_spectra
+    from fnsi_lab.ident.errors import IdentWarning
+
+    if data.motion is None:
+        return
+    _, rms_h = basis_spectra(tuple(basis), data.motion)
+    dead = [n for n, v in zip(coefficient_names(tuple(basis)), rms_h) if v == 0]
+    if dead:
+        warnings.warn(f"basis functions {dead} are identically zero on the record's measured "
+                      "motion (a clearance larger than the motion: no contact there); the "
+                      "model's own motion is simulated all the same", IdentWarning,
+                      stacklevel=3)
+
+
+def _prepare(inp: Any, basis: Sequence[Nonlinearity], band_hz: tuple[float, float],
+             quantity: OutputQuantity, processing: Mapping[str, Any], *,
+             transient_periods: int | None, time_base: TimeBase,
+             bilinear_period_s: float | None,
+             motion_for: Sequence[Nonlinearity] = ()) -> FrequencyData:
+    """:func:`prediction_data`'s preparation (``motion_for``: channels whose motion is kept
+    without basis columns)."""
     from fnsi_lab.ident.core.periodic import prepare_frequency_data
 
     return prepare_frequency_data(
         u=inp.u, y=inp.y, sample_rate_hz=inp.sample_rate_hz,
-        samples_per_period=inp.samples_per_period, basis=basis,
+        samples_per_period=inp.samples_per_period, basis=basis, motion_for=motion_for,
         band_hz=prediction_band(band_hz, inp.sample_rate_hz, inp.samples_per_period, quantity),
         transient_periods=transient_periods, output_quantity=quantity,
         output_names=inp.output_channels, input_names=inp.input_channels,
