@@ -38,3 +38,22 @@ def test_layout_one_member_per_line_arrays_of_numbers_on_one_line():
 def test_unknown_objects_refused_when_asked():
     with pytest.raises(TypeError, match="object is not JSON serializable"):
         dumps({"x": object()}, unknown="error")
+
+
+def test_another_output_under_the_same_name_is_refused(tmp_path):
+    """check_output_path(outputs=...): two outputs of one command under one name would leave
+    only the last one written; refused with --force too, and named as an output (not "an
+    input of this command"). '-' (stdout) and None are not files."""
+    from fnsi_lab.errors import DataFileError
+    from fnsi_lab.outputs import check_output_path
+
+    target = tmp_path / "same"
+    with pytest.raises(DataFileError, match=r"--svg .*same: is also the --json output"):
+        check_output_path(target, option="--svg", outputs={"--json": str(target)})
+    target.write_text("kept")
+    with pytest.raises(DataFileError, match="is also the --json output") as info:
+        check_output_path(target, option="--svg", force=True, outputs={"--json": target})
+    assert "input" not in str(info.value) and target.read_text() == "kept"
+    assert check_output_path(tmp_path / "other", option="--svg",
+                             outputs={"--json": "-", "--rrd": None, "--x": target}) \
+        == tmp_path / "other"
