@@ -83,7 +83,12 @@ def load_result(result: Any) -> tuple[dict, str]:
 
 def _load_result(result: Any) -> tuple[dict, str]:
     """The result as a dict and a name for messages."""
+    from fnsi_lab.result_kind import not_an_ident_result
+
     if isinstance(result, Mapping):
+        refusal = not_an_ident_result(result, "result")
+        if refusal:
+            raise IdentDataError(refusal)
         return dict(result), "result"
     if hasattr(result, "to_json") and not isinstance(result, (str, os.PathLike)):
         return result.to_json(), "result"
@@ -106,8 +111,6 @@ def _load_result(result: Any) -> tuple[dict, str]:
         raise IdentDataError(f"{path}: not a JSON result ({exc.msg} at line {exc.lineno})") from None
     if not isinstance(data, dict):
         raise IdentDataError(f"{path}: not an fnsi-lab result (expected a JSON object)")
-    from fnsi_lab.result_kind import not_an_ident_result
-
     refusal = not_an_ident_result(data, str(path))
     if refusal:
         raise IdentDataError(refusal)

@@ -302,6 +302,13 @@ def test_another_commands_json_is_refused_by_validate_and_report(silverbox_jsons
     proc = _cli(["report", name, "--out", "out.html", "--quiet"], folder)
     _one_error_line(proc, name, writer)
     assert not any((folder / f).exists() for f in ("out.json", "out.svg", "out.html"))
+    # the API refuses the same JSON given as a dict
+    import fnsi_lab
+    from fnsi_lab.errors import FnsiLabError
+
+    with pytest.raises(FnsiLabError, match=writer):
+        fnsi_lab.validate_model(json.loads((folder / name).read_text()),
+                                SILVERBOX / "schroeder.npz")
 
 
 def test_one_path_for_two_outputs_is_refused_before_any_work(silverbox_jsons):
