@@ -75,6 +75,11 @@ def analyse_input(inp: IdentInput, cfg: IdentConfig | None = None, *,
     outputs = cfg.outputs if cfg is not None else None
     name = _input_channel(inp, cfg)
     inp = select_channels(inp, outputs=outputs, inputs=[name])
+    point = cfg.inputs[0].driving_point if cfg is not None and cfg.inputs else None
+    if point is not None and point not in inp.output_channels:   # the same config as ident's
+        raise IdentDataError(f"{cfg.file or 'config'}: inputs[0].driving_point {point!r} is not "
+                             f"an output of {inp.path} (outputs: "
+                             f"{', '.join(inp.output_channels)})")
     transient = (cfg.transient_periods if cfg is not None and cfg.transient_periods is not None
                  else inp.transient_periods) or 0
     P = inp.u.shape[1]

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -50,8 +51,9 @@ def add_ident_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", dest="json_out", default=None, metavar="OUT.json",
                         help="write the result as JSON ('-' for stdout)")
     parser.add_argument("--suggest", default=None, metavar="OUT.yaml",
-                        help="kind: spline elements: write the config with each replaced by "
-                             "the parametric form its curve suggests (docs/discovery.md)")
+                        help="kind: spline elements (or nonlinearities: auto): write the config "
+                             "with each replaced by the parametric form its curve suggests "
+                             "('-' for stdout; docs/discovery.md)")
     parser.add_argument("--validation", type=opt.INPUT, default=None, metavar="RECORD",
                         help="another record of the structure (e.g. the next force level): "
                              "the nonlinear terms are kept only if the model predicts it at "
@@ -213,11 +215,13 @@ def _print_refinement(res: dict, out=None) -> None:
 
 def _print_auto_summary(res: Any, out=None, warnings: list | tuple = (),
                         refined: bool = False, units: dict | None = None,
-                        fates: list | None = None) -> None:
+                        fates: list | None = None, result_json: dict | None = None) -> None:
     """Summary of a robust-pipeline result (:class:`~fnsi_lab.ident.robust.auto_result.AutoResult`);
     ``refined``: the answer is the output-error refinement's (printed after); ``units``:
     the JSON's ``units`` block (coefficient units); ``fates``: each MDI row's fate
-    (:mod:`ident.robust.pole_fate`, the JSON's ``mdi[].fate``)."""
+    (:mod:`ident.robust.pole_fate`, the JSON's ``mdi[].fate``); ``result_json``: the result,
+    whose ``coefficients`` and ``nonlinear_vs_linear`` decide what is printed as the answer
+    (the terminal never says another value or verdict than the file)."""
     out = out or sys.stdout
     coefficient_units = (units or {}).get("coefficients") or {}
     ic = res.information_criterion
@@ -240,21 +244,37 @@ def _print_auto_summary(res: Any, out=None, warnings: list | tuple = (),
     if res.reduced is not None:
         print(f"reduced model: order {res.reduced.order}", file=out)
     answer = "reduced" if res.final == "reduced" else "full"
-    print(f"answer: the {'reduced' if answer == 'reduced' else 'full'} model at order "
-          f"{res.final_model.order}" + (" (the reduction did not make the coefficients more "
-                                        "consistent)" if res.reduced is not None
-                                        and answer == "full" else ""), file=out)
+    doc = result_json or {}
+    linear = (doc.get("nonlinear_vs_linear") or {}).get("decision") == "linear"
+    final = {c["name"]: c for c in doc.get("coefficients") or []}
+    which = f"the {answer} model at order {res.final_model.order}" + (
+        " (the reduction did not make the coefficients more consistent)"
+        if res.reduced is not None and answer == "full" else "")
+    print(f"answer: the linear fit at order {doc.get('order')} (its nonlinear model: {which};"
+          " nonlinear vs linear below)" if linear and doc.get("coefficients") is not None
+          else f"answer: {which}", file=out)
     rows = [("selected", "selected")]
-    if res.mdi_order != res.selected_order:
-        rows.append((f"order {res.mdi_order}", "full"))
+    if res.mdi_order != res.selected_order or answer == "full":
+        rows.append((f"order {res.mdi_order}" if res.mdi_order != res.selected_order
+                     else "full", "full"))
     rows.append(("reduced", "reduced"))
+    printed: list[list] = []
     for label, key in rows:
+        values = [c["value"] for c in res.coefficients.get(key) or []]
+        if key != answer and values in printed:
+            continue                         # the same model under another name
+        printed.append(values)
         for c in res.coefficients.get(key) or []:
             err = (f"  error {c['value_error_percent']:+.3f} %"
                    if c.get("value_error_percent") is not None else "")
-            mark = " <- answer" if key == answer or (answer == "full" and key == "selected"
-                                                     and res.mdi_order == res.selected_order) else ""
-            if mark and refined:
+            mark = ""
+            if key == answer:
+                if not refined or linear:   # the file's own value and verdict (refined:
+                    c = {**c, **{k: v for k, v in final.get(c["name"], {}).items()   # below)
+                                 if k in ("value", "verdict", "verdict_reason")}}
+                mark = (" <- the nonlinear model's (the answer is the linear fit)" if linear
+                        else " <- answer")
+            if mark and refined and not linear:
                 mark = " <- FNSI's answer, refined below"
             unit = coefficient_units.get(c["name"], "")
             unit = f" {unit}" if unit else ""
@@ -292,15 +312,30 @@ def run_ident(args: argparse.Namespace) -> int:
         if args.json_out is not None:
             check_output_path(args.json_out, force=args.force, option="--json",
                               inputs=[args.input, args.config])
+    if args.auto and args.order is not None:
+        raise IdentError("--order and --auto: give one (--auto chooses the order; --orders "
+                         "FIRST:LAST limits its sweep)")
     suggest = getattr(args, "suggest", None)
-    if suggest is not None:
+    if suggest is not None and suggest != "-":
+        if args.json_out not in (None, "-") and (
+                Path(suggest).resolve() == Path(args.json_out).resolve()):
+            raise IdentError(f"--suggest and --json both name {suggest}: one file cannot hold "
+                             "the YAML and the JSON (fix: give two names)")
         check_output_path(suggest, force=args.force, option="--suggest",
                           inputs=[args.input, args.config])
+    if suggest == "-" and args.json_out == "-":
+        raise IdentError("--suggest - and --json -: only one of them can go to stdout")
     if getattr(args, "blas_threads", 0) and args.blas_threads > 0:
         from fnsi_lab.blas import limit_blas_threads
 
         limit_blas_threads(args.blas_threads)
     config = fnsi_lab.load_config(args.config) if args.config is not None else None
+    if suggest is not None and not (config is not None and (
+            config.nonlinearities_auto or any(nl.kind == "spline"
+                                              for nl in config.nonlinearities))):
+        raise IdentError("--suggest needs a kind: spline element (or nonlinearities: auto) in "
+                         "the config: nothing to suggest from (fix: drop --suggest or add one; "
+                         "docs/discovery.md)")
     if not args.auto:
         order = args.order if args.order is not None else (config.order if config else None)
         if order is None:
@@ -309,18 +344,19 @@ def run_ident(args: argparse.Namespace) -> int:
         result = fnsi_lab.identify(args.input, config, order=order, max_order=args.max_order,
                                    block_rows=args.block_rows, validation=args.validation)
     else:
-        show = not args.quiet and args.json_out != "-"
+        show = not args.quiet and args.json_out != "-" and suggest != "-"
         result = fnsi_lab.identify(args.input, config, orders=args.orders or None,
                                    reduce_at=args.reduce_at, block_rows=args.block_rows,
                                    progress=show, validation=args.validation)
     res = result.to_json()
-    if not args.quiet and args.json_out != "-":
+    if not args.quiet and args.json_out != "-" and suggest != "-":
         if (res.get("periods") or {}).get("statement"):
             print(f"periods: {res['periods']['statement']}")
         _print_parameter_summary(res)
         refined = bool((res.get("output_error") or {}).get("applied"))
         if result.auto is not None:
             _print_auto_summary(result.auto, warnings=res["warnings"], refined=refined,
+                                result_json=res,
                                 units=res.get("units"),
                                 fates=[r.get("fate") for r in res.get("mdi") or []] or None)
         else:
@@ -328,9 +364,9 @@ def run_ident(args: argparse.Namespace) -> int:
         _print_refinement(res)
         _print_nested(res)
         _print_curves(res)
-    if suggest is not None:
-        _write_suggestion(res, suggest)
     write_json(res, args.json_out, force=True)
+    if suggest is not None:   # after the result: a suggestion never costs the JSON
+        _write_suggestion(res, suggest)
     return 0
 
 
@@ -341,7 +377,8 @@ def _print_curves(res: dict, out=None) -> None:
     if loc and loc.get("candidates"):   # nonlinearities: auto
         best = loc["candidates"][0]
         sig = best.get("significance")   # None (JSON null) for a Jenkins element's ranking
-        print(f"nonlinearities: auto: located {best['name']} ({best['verdict']}, score "
+        word = "located" if best.get("verdict") == "located" else "nothing located; best"
+        print(f"nonlinearities: auto: {word} {best['name']} ({best['verdict']}, score "
               f"{best['score']:.3g}" + (f", -log10 p {sig:.1f}" if sig is not None else "")
               + f"; {len(loc['candidates'])} candidates, form {loc.get('form', 'generic')}: "
               "the JSON's localisation)", file=out)
@@ -381,8 +418,12 @@ def _write_suggestion(res: dict, path: str) -> None:
     from fnsi_lab.outputs import atomic_output
 
     text = (res.get("suggested_config") or {}).get("yaml")
-    if not text:
-        raise IdentError("--suggest needs a kind: spline element in the config (nothing to "
-                         "suggest from); drop --suggest or add one (docs/discovery.md)")
+    if not text:   # nonlinearities: auto located nothing: no element, no shape to suggest
+        print(f"--suggest: nothing written to {path}: no element to suggest a form for "
+              "(nonlinear vs linear above)", file=sys.stderr)
+        return
+    if path == "-":
+        sys.stdout.write(text)
+        return
     with atomic_output(path) as fh:
         fh.write(text)

@@ -72,6 +72,7 @@ def fit_session(session: IdentSession, *, order: int | None, sweep: Sequence[int
 
         spread = (spread_function(session.data, basis, driving_point=dp)
                   if basis and dp is not None else None)
+        sweep = _feasible_sweep(session, sweep, options.block_rows)
         t1 = time.perf_counter()
         res = identify_auto(session.data, options, orders=sweep, reduce_at=reduce_at,
                             progress=progress, coefficients=coefficients if basis else None,
@@ -79,6 +80,37 @@ def fit_session(session: IdentSession, *, order: int | None, sweep: Sequence[int
         session.timings_s["auto"] = time.perf_counter() - t1
         session.warnings.extend(res.confidence.get("warnings", []))  # e.g. order at sweep end
         return Fit(res.final_model, "auto", auto=res)
+
+
+def _feasible_sweep(session: IdentSession, sweep: Sequence[int], block_rows: int | None
+                    ) -> list[int]:
+    """The sweep's orders that the record's lines can hold with the session's extended
+    inputs (``2F >= i (m_e + p)`` with ``(i - 1) p >= n``: docs/ident.md, "Block rows"); the
+    orders cut are said in a warning. A one-output record with a 12-knot spline (13
+    extended inputs) holds orders up to 45 on the Silverbox's 323 lines, where the default
+    sweep to 60 stopped the identification."""
+    from fnsi_lab.ident.core.subspace import block_rows_for, default_output_rank
+
+    data = session.data
+    F, m_e, p_all = data.n_lines, data.n_extended_inputs, data.n_outputs
+
+    def fits(n: int) -> bool:
+        rank = default_output_rank(p_all, n, m_e)
+        p = rank if rank is not None and rank < p_all else p_all
+        i = int(block_rows) if block_rows else block_rows_for(data, n)
+        return (i - 1) * p >= n and 2 * F >= i * (m_e + p)
+
+    orders = sorted(int(n) for n in sweep)
+    if not orders or fits(orders[-1]):
+        return list(sweep)
+    kept = [n for n in orders if fits(n)]
+    if not kept:
+        return list(sweep)       # the decomposition says why, with the fix
+    session.warnings.append(
+        f"order sweep cut at {kept[-1]} (asked up to {orders[-1]}): {F} lines hold no more "
+        f"with {m_e} extended inputs (fewer basis columns, e.g. knots, or a wider band "
+        "allow more)")
+    return kept
 
 
 def answer_modes(fit: Fit, output_error: OutputErrorFit | None = None) -> list[Mode]:

@@ -121,16 +121,28 @@ def read_candidates_file(path: str) -> list[dict]:
 
     data, _ = load_yaml(path)
     items = data.get("candidates") if isinstance(data, dict) else data
+    return candidate_list(items, path)
+
+
+def candidate_list(items: Any, source: str = "candidates") -> list[dict]:
+    """Location vectors from a list of ``{channels: {A: 1, B: -1}}`` or of channel mappings
+    (``{A: 1, B: -1}``), as a file or the API give them.
+
+    Raises
+    ------
+    IdentError
+        One line naming ``source``, the item and the fix.
+    """
     fix = "give a list like [{channels: {NC2W-Z: 1, NC2B-Z: -1}}, {channels: {IP1-Z: 1}}]"
-    if not isinstance(items, list) or not items:
-        raise IdentError(f"{path}: expected a list of candidate locations ({fix})")
+    if isinstance(items, (str, bytes)) or not isinstance(items, Sequence) or not items:
+        raise IdentError(f"{source}: expected a list of candidate locations ({fix})")
     out: list[dict] = []
     for i, it in enumerate(items):
-        chs = it.get("channels", it) if isinstance(it, dict) else None
-        if (not isinstance(chs, dict) or not chs or not all(
+        chs = it.get("channels", it) if isinstance(it, Mapping) else None
+        if (not isinstance(chs, Mapping) or not chs or not all(
                 isinstance(w, (int, float)) and not isinstance(w, bool) and w != 0
                 for w in chs.values())):
-            raise IdentError(f"{path}: candidates[{i}] is not a mapping channel -> non-zero "
+            raise IdentError(f"{source}: candidates[{i}] is not a mapping channel -> non-zero "
                              f"weight ({fix})")
         out.append({str(k): float(v) for k, v in chs.items()})
     return out
@@ -646,9 +658,14 @@ def locate_input(inp, cfg, *, candidates: Any = "all", order: int | None = None,
     if isinstance(candidates, str):
         cands = candidate_locations(names, candidates)
     else:
-        cands = [dict(c) for c in candidates]
+        cands = candidate_list(list(candidates))
     if not cands:
         raise IdentError("no candidate location (give at least one channel)")
+    for c in cands:
+        unknown = [ch for ch in c if ch not in names]
+        if unknown:
+            raise IdentError(f"candidate {location_name(c)}: channel(s) {', '.join(unknown)} "
+                             f"not among the outputs ({', '.join(names)})")
     reader = Nonlinearity(name="locate", kind="quadratic_damping",
                           channels={c: 1.0 for c in sorted({ch for c in cands for ch in c})})
     session = prepare_session(inp, lin_cfg, motion_for=(reader,))
@@ -661,6 +678,11 @@ def locate_input(inp, cfg, *, candidates: Any = "all", order: int | None = None,
 
         ranked = rank_stick_slip(session, cands, progress=progress)
         ranked.warnings = list(session.warnings)
+        if order is not None:
+            ranked.warnings.append(
+                f"order {order} is not used by the Jenkins ranking: it compares each "
+                f"candidate's information criterion, minimised over the orders up to 30, with "
+                f"the linear model's (order {ranked.order}); form generic uses it")
         ranked.timings_s["total"] = time.perf_counter() - t0
         if form == "jenkins" or ranked.located is not None:
             ranked.form = "jenkins"

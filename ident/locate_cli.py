@@ -101,10 +101,15 @@ def print_ranking(loc, top: int = 10, out=None) -> None:
     if best is None:
         print("no location explains the distortion beyond the noise", file=out)
     else:
-        print(f"located: {best.name} (channels {best.channels}); characterise it with "
-              "kind: spline there (docs/discovery.md)", file=out)
+        print(f"located: {best.name} (channels {_vector(best.channels)}); characterise it "
+              "with kind: spline there (docs/discovery.md)", file=out)
     for w in loc.warnings:
         print(f"  warning: {w}", file=out)
+
+
+def _vector(channels) -> str:
+    """A location vector as ``wing +1, payload -1``."""
+    return ", ".join(f"{k} {v:+g}" for k, v in dict(channels).items())
 
 
 def _print_stick_slip(loc, top: int, out) -> None:
@@ -128,9 +133,11 @@ def _print_stick_slip(loc, top: int, out) -> None:
     if best is None:
         print("nothing located (the verdicts and notes above say why)", file=out)
     else:
-        print(f"located: {best.name} (channels {best.channels}); a Jenkins element there is "
-              "supported (kind: jenkins, slip: auto, for a joint that sticks and slips); "
-              "kind: spline there shows the shape (docs/discovery.md)", file=out)
+        print(f"located: {best.name} (channels {_vector(best.channels)}); a stick-slip "
+              "element there explains the distortion far better than the linear model, which "
+              "locates the nonlinearity but does not prove friction (a hardening spring is "
+              "located so too): kind: spline there shows its shape, kind: jenkins, slip: auto "
+              "tests a joint that sticks and slips (docs/discovery.md)", file=out)
     for w in loc.warnings:
         print(f"  warning: {w}", file=out)
 

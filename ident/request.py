@@ -186,6 +186,24 @@ def _active_basis(basis: Sequence[Nonlinearity], inp: IdentInput,
     return tuple(kept)
 
 
+def _drive_lines(inp: IdentInput) -> np.ndarray:
+    """The excited lines found in the drive's spectrum (periods after the transient ones);
+    empty when no multisine is found (a random or swept force)."""
+    from fnsi_lab.ident.core.excitation import detect_excited_lines
+
+    u = np.asarray(inp.u, float)                     # (R, P, N, m)
+    skip = int(inp.transient_periods or 0)
+    if u.ndim != 4 or u.shape[2] < 4:
+        return np.zeros(0)
+    steady = u[:, skip:] if u.shape[1] > skip else u
+    power = np.mean(np.abs(np.fft.rfft(steady, axis=2)) ** 2, axis=(0, 1))   # (N/2+1, m)
+    try:
+        return np.asarray(detect_excited_lines(power, inp.sample_rate_hz,
+                                               inp.samples_per_period).lines)
+    except (ValueError, IdentError):
+        return np.zeros(0)
+
+
 def default_config(inp: IdentInput, *, harmonics: float = 1.0,
                    driving_point: str | None = None) -> IdentConfig:
     """The configuration used when the caller gives none.
@@ -203,6 +221,8 @@ def default_config(inp: IdentInput, *, harmonics: float = 1.0,
     quantity = inp.output_quantity or "displacement"
     basis = _active_basis(basis_from_truth(inp.truth), inp, quantity)
     lines = np.asarray(inp.excited_lines) if inp.excited_lines is not None else np.zeros(0)
+    if not lines.size:   # an array file that does not say: the drive's multisine lines
+        lines = _drive_lines(inp)
     if lines.size:
         hi = float(lines.max()) * df
         if basis and harmonics > 1:

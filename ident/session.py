@@ -136,6 +136,13 @@ def prepare_session(inp: IdentInput, cfg: IdentConfig, *, search_order: int | No
     """
     t0 = time.perf_counter()
     inp = select_channels(inp, outputs=cfg.outputs, inputs=[i.name for i in cfg.inputs] or None)
+    for k, spec in enumerate(cfg.inputs):   # a misspelt driving point, basis or not
+        if spec.driving_point is not None and spec.driving_point not in inp.output_channels:
+            from fnsi_lab.ident.errors import ChannelError
+
+            raise ChannelError(f"{cfg.file or 'config'}: inputs[{k}].driving_point "
+                               f"{spec.driving_point!r} is not an output (outputs: "
+                               f"{', '.join(inp.output_channels)})")
     cfg, truth_notes = apply_recording_truth(cfg, inp.truth)
     nyquist = inp.sample_rate_hz / 2
     if cfg.band_hz[1] > nyquist:  # the band's upper edge included: no line exists there

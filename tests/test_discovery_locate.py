@@ -171,9 +171,11 @@ def test_nonlinearities_auto_with_nothing_located_answers_linear(gvt, tmp_path):
     stop with an error and lose the linear answer."""
     cfg = tmp_path / "auto.yaml"
     cfg.write_text(GVT_CONFIG.replace("nonlinearities: []", "nonlinearities: auto"))
-    out = tmp_path / "auto.json"
-    r = _run("ident", gvt[12], "--config", cfg, "--auto", "--json", out)
+    out, sugg = tmp_path / "auto.json", tmp_path / "sugg.yaml"
+    r = _run("ident", gvt[12], "--config", cfg, "--auto", "--json", out, "--suggest", sugg)
     assert r.returncode == 0, r.stderr
+    # no element, no shape: the suggestion is skipped with a note, the result is written
+    assert not sugg.exists() and "--suggest: nothing written" in r.stderr
     res = json.loads(out.read_text())
     nvl = res["nonlinear_vs_linear"]
     assert nvl["test"] == "localisation" and nvl["decision"] == "linear"

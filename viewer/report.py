@@ -157,9 +157,9 @@ def summary_rows(result: Mapping[str, Any]) -> list[tuple[str, str]]:
                  ("confidence", str(conf.get("level", conf)) if isinstance(conf, dict)
                   else str(conf or "-"))]
     models = [("answer", result.get("coefficients"))]
-    if result.get("method") == "auto":
-        models = [("full model", (result.get("full_model") or {}).get("coefficients")),
-                  ("reduced model", (result.get("reduced") or {}).get("coefficients"))]
+    if result.get("method") == "auto":   # the answer's verdicts first (the nested test's)
+        models += [("full model", (result.get("full_model") or {}).get("coefficients")),
+                   ("reduced model", (result.get("reduced") or {}).get("coefficients"))]
     for label, coeffs in models:
         for c in coeffs or []:
             unit = c.get("unit") or coefficient_unit(result, c["name"])

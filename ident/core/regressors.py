@@ -90,7 +90,9 @@ def regressor_conditioning(data: FrequencyData) -> RegressorConditioning | None:
     sv = np.linalg.svd(En, compute_uv=False)
     cond = float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf")
     others = [np.delete(E, m + a, axis=1) for a in range(s)]
+    # a column that the others explain exactly (the same element twice) has an infinite
+    # inflation: its coefficient is not identifiable, which the verdicts then say
+    left = np.array([1.0 - _r_squared(E[:, m + a], others[a]) for a in range(s)])
     with np.errstate(divide="ignore"):
-        vif = np.array([1.0 / max(1.0 - _r_squared(E[:, m + a], others[a]), 0.0)
-                        for a in range(s)])
+        vif = np.where(left > 0, 1.0 / np.maximum(left, np.finfo(float).tiny), np.inf)
     return RegressorConditioning(names=names, condition_number=cond, inflation=vif)
