@@ -76,7 +76,7 @@ def analyse_input(inp: IdentInput, cfg: IdentConfig | None = None, *,
     name = _input_channel(inp, cfg)
     inp = select_channels(inp, outputs=outputs, inputs=[name])
     point = cfg.inputs[0].driving_point if cfg is not None and cfg.inputs else None
-    if point is not None and point not in inp.output_channels:   # the same config as ident's
+    if cfg is not None and point is not None and point not in inp.output_channels:
         raise IdentDataError(f"{cfg.file or 'config'}: inputs[0].driving_point {point!r} is not "
                              f"an output of {inp.path} (outputs: "
                              f"{', '.join(inp.output_channels)})")
