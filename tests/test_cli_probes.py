@@ -136,3 +136,14 @@ def test_contradicting_options_are_refused_before_any_work(chain, tmp_path, caps
                  "--suggest", str(tmp_path / "s.yaml")]) == 2
     assert "--suggest needs a kind: spline" in capsys.readouterr().err
     assert not out.exists()      # refused before the identification, nothing half-written
+
+
+def test_export_refuses_one_name_for_the_uff_file_and_the_csv_folder(chain, tmp_path, capsys):
+    """`export --uff X --csv X` wrote the UFF file, then failed on the folder (exit 2 after
+    writing): now refused before anything is written."""
+    res = tmp_path / "r.json"
+    assert main(["ident", str(chain / "chain.npz"), "--config", str(chain / "cubic.yaml"),
+                 "--order", "6", "--json", str(res), "--quiet"]) == 0
+    target = tmp_path / "out.uff"
+    assert main(["export", str(res), "--uff", str(target), "--csv", str(target)]) == 2
+    assert "both name" in capsys.readouterr().err and not target.exists()

@@ -103,6 +103,10 @@ def run_export(args: argparse.Namespace) -> int:
     csv_dir = None
     if args.csv is not None:
         # the folder (created when the tables are written) and every table in it
+        if uff_path is not None and Path(args.csv).resolve() == uff_path.resolve():
+            raise ConfigError(f"--uff and --csv both name {args.csv}: the CSV tables go in a "
+                              "folder, the UFF file beside it", field="--csv",
+                              fix="give --csv a folder name other than the UFF file")
         csv_dir = check_output_folder(args.csv, option="--csv", create=False, inputs=inputs)
         for name in CSV_FILES:
             if csv_dir.is_dir():
