@@ -119,6 +119,11 @@ def resolve_request(inp: Any, config: IdentConfig | None = None, *, order: Any =
         raise IdentError(f"max_order {top} is below order {fixed} (fix: max_order >= order, "
                          "or leave max_order out)")
     rows = block_rows if block_rows is not None else cfg.block_rows
+    if fixed is None and reduce_at is not None and check_order(reduce_at, "reduce_at") > max(
+            sweep):
+        raise IdentError(f"reduce_at {reduce_at} is beyond the order sweep (up to "
+                         f"{max(sweep)}): the MDI and the reduction need a model of the sweep "
+                         "(fix: a reduce_at within it, or a wider sweep)")
     return IdentRequest(config=cfg, order=fixed, orders=sweep,
                         reduce_at=check_order(reduce_at, "reduce_at") if reduce_at is not None
                         else None,

@@ -80,7 +80,7 @@ def test_mat_file_and_order_override(tmp_path, cubic_arrays, config_file, capsys
 @pytest.mark.parametrize("change, message", [
     (lambda a: a.pop("fs"), "missing array 'fs'"),
     (lambda a: a.update(y=a["y"][:-5]), "same number of samples"),
-    (lambda a: a.update(channels=np.array(["X1", "X2", "Z3"])), "channel 'X3' is not among the identified outputs"),
+    (lambda a: a.update(channels=np.array(["X1", "X2", "Z3"])), "driving_point 'X3' is not an output (outputs: X1, X2, Z3)"),
     (lambda a: a.update(N=np.array(1000)), "whole number of periods"),
     # the file says accelerations, the config displacements: read as displacements the
     # lab stop's accelerations gave stiffnesses -324 % / -399 %
