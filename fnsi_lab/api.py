@@ -69,6 +69,10 @@ def _as_input(source: Any, samples_per_period: int | None) -> Any:
         return source
     if isinstance(source, Mapping):
         return input_from_arrays(dict(source), "<arrays>", samples_per_period)
+    if isinstance(source, (list, tuple)):   # several records: one identification over all
+        from fnsi_lab.ident.core.io import stack_records
+
+        return stack_records([_as_input(s, samples_per_period) for s in source])
     return load_input(source, samples_per_period=samples_per_period)
 
 
@@ -100,10 +104,13 @@ def identify(source: Any, config: Any = None, *, order: int | None = None,
 
     Parameters
     ----------
-    source : str, path, mapping or IdentInput
+    source : str, path, mapping or IdentInput, or a list of them
         An fnsi-lab recording (``.mcap``), an array file (``.npz``/``.mat``: ``u``, ``y``,
         ``fs``, optional ``N``, ``channels``, ...; docs/ident.md), the same arrays as a
-        mapping, or an :class:`~fnsi_lab.ident.core.io.IdentInput`.
+        mapping, or an :class:`~fnsi_lab.ident.core.io.IdentInput`. A list: several records
+        of one structure (force levels, realisations), identified together as the
+        realisations of one input (:func:`ident.core.io.stack_records`: one model for all;
+        docs/ident.md, "Several records at once").
     config : str, path, mapping or IdentConfig, optional
         See :func:`load_config`. None: the excited band, the driving point where a
         recording's channel table puts an output at the force's node and direction, and for
@@ -182,7 +189,9 @@ def identify(source: Any, config: Any = None, *, order: int | None = None,
     inp = _as_input(source, samples_per_period or (cfg.samples_per_period if cfg else None))
     request = resolve_request(inp, cfg, order=order, orders=orders, reduce_at=reduce_at,
                               max_order=max_order, block_rows=block_rows,
-                              driving_point=(_recorded_driving_point(source) if cfg is None
+                              driving_point=(_recorded_driving_point(
+                                  source[0] if isinstance(source, (list, tuple)) else source)
+                                  if cfg is None
                                              else None))
     other = None
     if validation is not None:   # its channels and rate checked before any work

@@ -24,6 +24,7 @@ examples:
   fnsi-lab ident data.npz --config ident.yaml --auto --orders 2:20
   fnsi-lab ident data.mat --config ident.yaml --order 6 --max-order 20
   fnsi-lab ident rms55.mcap --config joint.yaml --auto --validation rms69.mcap
+  fnsi-lab ident rms40.mcap rms55.mcap rms69.mcap --config joint.yaml --auto   # one model
 
 INPUT: an fnsi-lab MCAP recording, or .npz/.mat with u (n_samples, n_inputs),
 y (n_samples, n_outputs), fs, optional N, channels, input_channels (see docs/ident.md).
@@ -38,7 +39,9 @@ with their uncertainty and the model error against them (docs/ident.md).
 
 def add_ident_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the ``ident`` options to ``parser``."""
-    parser.add_argument("input", type=opt.INPUT, metavar="INPUT", help="recording (.mcap) or array file (.npz, .mat)")
+    parser.add_argument("input", type=opt.INPUT, metavar="INPUT", nargs="+",
+                        help="recording (.mcap) or array file (.npz, .mat); several: records of "
+                             "one structure (force levels), identified together")
     parser.add_argument("--config", type=opt.INPUT, default=None, metavar="IDENT.yaml",
                         help="ident configuration (band, channels, nonlinearities; docs/ident.md); "
                              "a bare name such as smallsat39 picks a packaged example")
@@ -311,7 +314,7 @@ def run_ident(args: argparse.Namespace) -> int:
     if args.json_out != "-":  # '' is refused there, not taken for "no file"
         if args.json_out is not None:
             check_output_path(args.json_out, force=args.force, option="--json",
-                              inputs=[args.input, args.config])
+                              inputs=[*args.input, args.config])
     if args.auto and args.order is not None:
         raise IdentError("--order and --auto: give one (--auto chooses the order; --orders "
                          "FIRST:LAST limits its sweep)")
@@ -322,7 +325,7 @@ def run_ident(args: argparse.Namespace) -> int:
             raise IdentError(f"--suggest and --json both name {suggest}: one file cannot hold "
                              "the YAML and the JSON (fix: give two names)")
         check_output_path(suggest, force=args.force, option="--suggest",
-                          inputs=[args.input, args.config])
+                          inputs=[*args.input, args.config])
     if suggest == "-" and args.json_out == "-":
         raise IdentError("--suggest - and --json -: only one of them can go to stdout")
     if getattr(args, "blas_threads", 0) and args.blas_threads > 0:
@@ -330,6 +333,7 @@ def run_ident(args: argparse.Namespace) -> int:
 
         limit_blas_threads(args.blas_threads)
     config = fnsi_lab.load_config(args.config) if args.config is not None else None
+    source = args.input[0] if len(args.input) == 1 else list(args.input)
     if suggest is not None and not (config is not None and (
             config.nonlinearities_auto or any(nl.kind == "spline"
                                               for nl in config.nonlinearities))):
@@ -341,11 +345,11 @@ def run_ident(args: argparse.Namespace) -> int:
         if order is None:
             raise IdentError("no model order: give --order N (or 'order:' in the config), "
                              "or --auto for the robust pipeline")
-        result = fnsi_lab.identify(args.input, config, order=order, max_order=args.max_order,
+        result = fnsi_lab.identify(source, config, order=order, max_order=args.max_order,
                                    block_rows=args.block_rows, validation=args.validation)
     else:
         show = not args.quiet and args.json_out != "-" and suggest != "-"
-        result = fnsi_lab.identify(args.input, config, orders=args.orders or None,
+        result = fnsi_lab.identify(source, config, orders=args.orders or None,
                                    reduce_at=args.reduce_at, block_rows=args.block_rows,
                                    progress=show, validation=args.validation)
     res = result.to_json()

@@ -170,6 +170,75 @@ def input_from_arrays(arrays: Mapping[str, Any], path: str = "",
                       output_quantity=quantity, path=path, excited_lines=exc_lines)
 
 
+def stack_records(records: Sequence[IdentInput]) -> IdentInput:
+    """Several records of one structure (force levels, multisine realisations) as the
+    realisations of one input, for one identification over all of them.
+
+    The records must share the sample rate, the period ``N``, the number of periods, the
+    channels (by name; the first record's order), the output quantity and the excited lines
+    (the same multisine grid; other phases are welcome). The transient periods are the
+    first record's (else the largest any record declares); a simulated record's ``truth``
+    is dropped (several truths, no one answer).
+
+    Parameters
+    ----------
+    records : sequence of IdentInput
+        ``u`` (R_k, P, N, m), ``y`` (R_k, P, N, p) each.
+
+    Returns
+    -------
+    IdentInput
+        ``u`` (sum R_k, P, N, m), ``y`` (sum R_k, P, N, p); ``path`` joins the paths with
+        `` + ``.
+
+    Raises
+    ------
+    IdentDataError
+        Records that cannot be stacked, one line naming the record, the mismatch and the fix.
+    """
+    if not records:
+        raise IdentDataError("no record to identify")
+    first = records[0]
+    if len(records) == 1:
+        return first
+    outs, ins = list(first.output_channels), list(first.input_channels)
+    us, ys = [], []
+    for rec in records:
+        name = rec.path or "record"
+        if abs(rec.sample_rate_hz - first.sample_rate_hz) > 1e-9 * first.sample_rate_hz:
+            raise IdentDataError(f"{name}: sampled at {rec.sample_rate_hz:g} Hz, "
+                                 f"{first.path} at {first.sample_rate_hz:g} Hz (fix: records "
+                                 "of one rate)")
+        if (rec.samples_per_period != first.samples_per_period
+                or rec.u.shape[1] != first.u.shape[1]):
+            raise IdentDataError(f"{name}: {rec.u.shape[1]} periods of {rec.samples_per_period}"
+                                 f" samples, {first.path}: {first.u.shape[1]} of "
+                                 f"{first.samples_per_period} (fix: records of one test plan, "
+                                 "the same periods)")
+        if (rec.output_quantity and first.output_quantity
+                and rec.output_quantity != first.output_quantity):
+            raise IdentDataError(f"{name}: {rec.output_quantity} outputs, {first.path}: "
+                                 f"{first.output_quantity}")
+        picked = select_channels(rec, outputs=outs, inputs=ins)
+        a, b = first.excited_lines, rec.excited_lines
+        if a is not None and b is not None and not np.array_equal(np.asarray(a),
+                                                                  np.asarray(b)):
+            raise IdentDataError(f"{name}: excites other lines than {first.path} (fix: records "
+                                 "of one multisine grid; other phases are fine)")
+        us.append(np.asarray(picked.u))
+        ys.append(np.asarray(picked.y))
+    transient = first.transient_periods
+    if transient is None:
+        declared = [r.transient_periods for r in records if r.transient_periods is not None]
+        transient = max(declared) if declared else None
+    lines = next((r.excited_lines for r in records if r.excited_lines is not None), None)
+    quantity = next((r.output_quantity for r in records if r.output_quantity), None)
+    return replace(first, u=np.concatenate(us, axis=0), y=np.concatenate(ys, axis=0),
+                   transient_periods=transient, excited_lines=lines, truth=None,
+                   output_quantity=quantity, path=" + ".join(str(r.path) for r in records),
+                   notes=tuple(n for r in records for n in r.notes))
+
+
 def select_channels(inp: IdentInput, *, outputs: Sequence[str] | None = None,
                     inputs: Sequence[str] | None = None) -> IdentInput:
     """Keep (and order) the named output and input channels.
