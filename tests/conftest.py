@@ -118,3 +118,24 @@ def _blas_threads_restored():
     from fnsi_lab.blas import restored_blas_threads
     with restored_blas_threads():
         yield
+
+
+def write_cubic_chain(path: Path, *, rms: float = 20.0, periods: int = 2, seed: int = 1,
+                      noise: float = 0.0) -> Path:
+    """The 3-DOF chain with its relative cubic spring (``daq.sim.lumped``, k3 = 1e9 N/m^3),
+    multisine 3-60 Hz at 500 Hz, ``periods`` periods of 4096, written as an array file
+    (displacements X1, X2, X3; force F-X3); ``noise``: white noise, that fraction of each
+    output's standard deviation."""
+    from fnsi_lab.daq.multisine import multisine
+    from fnsi_lab.daq.sim.integrate import simulate
+    from fnsi_lab.daq.sim.lumped import lumped_model
+
+    m = lumped_model("cubic")
+    ms = multisine(4096, 500.0, (3, 60), rms, n_periods=periods, seed=seed)
+    y = simulate(m, ms.signal[0][:, None], 500.0, periodic=4096,
+                 quantities=("displacement",)).displacement
+    if noise:
+        y = y + noise * y.std(axis=0) * np.random.default_rng(seed).standard_normal(y.shape)
+    np.savez(path, u=ms.signal[0][:, None], y=y, fs=500.0, N=4096,
+             channels=np.array(list(m.measured)), input_channels=np.array(["F-X3"]))
+    return path

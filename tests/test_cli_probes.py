@@ -26,17 +26,11 @@ nonlinearities:
 
 @pytest.fixture(scope="module")
 def chain(tmp_path_factory):
-    """The 3-DOF cubic chain (daq.sim.lumped), 500 Hz, multisine 3-60 Hz, 2 periods."""
-    from fnsi_lab.daq.multisine import multisine
-    from fnsi_lab.daq.sim.integrate import simulate
-    from fnsi_lab.daq.sim.lumped import lumped_model
+    """The 3-DOF cubic chain (conftest.write_cubic_chain), 2 periods, and its config."""
+    from conftest import write_cubic_chain
 
-    m = lumped_model("cubic")
-    ms = multisine(4096, 500.0, (3, 60), 20.0, n_periods=2, seed=1)
-    r = simulate(m, ms.signal[0][:, None], 500.0, periodic=4096, quantities=("displacement",))
     d = tmp_path_factory.mktemp("probes")
-    np.savez(d / "chain.npz", u=ms.signal[0][:, None], y=r.displacement, fs=500.0, N=4096,
-             channels=np.array(list(m.measured)), input_channels=np.array(["F-X3"]))
+    write_cubic_chain(d / "chain.npz")
     (d / "cubic.yaml").write_text(CONFIG)
     return d
 

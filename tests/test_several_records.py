@@ -11,39 +11,22 @@ import fnsi_lab
 from fnsi_lab.cli import main
 from fnsi_lab.errors import FnsiLabError
 
-CONFIG = """\
-band_hz: [3, 60]
-transient_periods: 1
-output_quantity: displacement
-inputs:
-  - {name: F-X3, driving_point: X3}
-nonlinearities:
-  - {name: knl, kind: polynomial, exponent: 3, channels: {X2: 1, X3: -1}}
-"""
+from test_cli_probes import CONFIG  # noqa: E402  (the chain's config, cubic X2 - X3)
 
 
 @pytest.fixture(scope="module")
 def levels(tmp_path_factory):
     """The 3-DOF chain with its relative cubic spring (k3 = 1e9 N/m^3) at 10 and 30 N RMS,
-    other multisine phases per level, 3 periods of 4096 at 500 Hz, 60 dB noise."""
-    from fnsi_lab.daq.multisine import multisine
-    from fnsi_lab.daq.sim.integrate import simulate
-    from fnsi_lab.daq.sim.lumped import lumped_model
+    other multisine phases per level, 3 periods of 4096 at 500 Hz, 60 dB noise; and a
+    record of another period length."""
+    from conftest import write_cubic_chain
 
-    m = lumped_model("cubic")
     d = tmp_path_factory.mktemp("levels")
     for k, rms in enumerate((10.0, 30.0)):
-        ms = multisine(4096, 500.0, (3, 60), rms, n_periods=3, seed=k + 1)
-        y = simulate(m, ms.signal[0][:, None], 500.0, periodic=4096,
-                     quantities=("displacement",)).displacement
-        y = y + 1e-3 * y.std(axis=0) * np.random.default_rng(k).standard_normal(y.shape)
-        np.savez(d / f"l{k}.npz", u=ms.signal[0][:, None], y=y, fs=500.0, N=4096,
-                 channels=np.array(list(m.measured)), input_channels=np.array(["F-X3"]))
-    short = multisine(2048, 500.0, (3, 60), 10.0, n_periods=3, seed=9)
-    np.savez(d / "short.npz", u=short.signal[0][:, None], y=np.zeros((short.signal[0].size, 3)),
-             fs=500.0, N=2048, channels=np.array(list(m.measured)),
-             input_channels=np.array(["F-X3"]))
-    (d / "cubic.yaml").write_text(CONFIG)
+        write_cubic_chain(d / f"l{k}.npz", rms=rms, periods=3, seed=k + 1, noise=1e-3)
+    with np.load(d / "l0.npz") as z:      # the same channels, 2048-sample periods
+        np.savez(d / "short.npz", **{k: z[k] for k in z.files if k != "N"}, N=2048)
+    (d / "cubic.yaml").write_text(CONFIG.replace("[3, 150]", "[3, 60]"))
     return d
 
 
@@ -63,6 +46,6 @@ def test_two_levels_give_one_model(levels, tmp_path, capsys):
 
 def test_records_of_another_plan_are_refused(levels):
     """Another period length: one line naming the record and the fix, before any work."""
-    with pytest.raises(FnsiLabError, match=r"short.npz: 3 periods of 2048 samples"):
+    with pytest.raises(FnsiLabError, match=r"short.npz: 6 periods of 2048 samples, .*l0.npz: 3 of 4096"):
         fnsi_lab.identify([str(levels / "l0.npz"), str(levels / "short.npz")],
                           str(levels / "cubic.yaml"), order=6)
