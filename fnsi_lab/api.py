@@ -266,8 +266,8 @@ def locate(source: Any, config: Any = None, *, candidates: Any = "all",
 
     Parameters
     ----------
-    source : str, path, mapping or IdentInput
-        As for :func:`identify`.
+    source : str, path, mapping or IdentInput, or a list of them
+        As for :func:`identify` (a list: several levels judged together).
     config : str, path, mapping or IdentConfig, optional
         Band, inputs, outputs and order (its nonlinearities are not used). None: the
         excited band.

@@ -15,6 +15,7 @@ examples:
   fnsi-lab locate test.mcap --config ident.yaml --candidates pairs
   fnsi-lab locate data.npz --config ident.yaml --candidates my-candidates.yaml
   fnsi-lab locate gvt.mcap --config linear.yaml --form generic   # no stick-slip element tried
+  fnsi-lab locate rms40.mcap rms55.mcap rms69.mcap --config linear.yaml   # levels together
 
 Candidates: each channel to ground and each pair of channels measured in the same
 direction (names ending -X, _Y, :+Z...; every pair when the names carry none): 'all'
@@ -45,7 +46,9 @@ def register(subparsers) -> None:
                     "measured distortion a generic nonlinear restoring force there explains, "
                     "with an F-test of that reduction against the linear model.",
         epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("input", metavar="INPUT", help="recording (.mcap) or array file (.npz, .mat)")
+    p.add_argument("input", metavar="INPUT", nargs="+",
+                   help="recording (.mcap) or array file (.npz, .mat); several: records of one "
+                        "structure (force levels) judged together")
     p.add_argument("--config", default=None, metavar="IDENT.yaml",
                    help="ident configuration (band, inputs, outputs, order; docs/ident.md); a "
                         "bare name such as smallsat39 picks a packaged example")
@@ -150,11 +153,12 @@ def run_locate(args: argparse.Namespace) -> int:
 
     if args.json_out not in (None, "-"):
         check_output_path(args.json_out, force=args.force, option="--json",
-                          inputs=[args.input, args.config])
+                          inputs=[*args.input, args.config])
     limit_blas_threads(1)
     show = not args.quiet and args.json_out != "-"
     progress = (lambda note: print(f"  {note}", file=sys.stderr)) if show else None
-    loc = fnsi_lab.locate(args.input, args.config, candidates=args.candidates,
+    source = args.input[0] if len(args.input) == 1 else list(args.input)
+    loc = fnsi_lab.locate(source, args.config, candidates=args.candidates,
                           order=args.order, refine=args.refine, knots=args.knots,
                           form=args.form, progress=progress)
     if show:

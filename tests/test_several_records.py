@@ -49,3 +49,14 @@ def test_records_of_another_plan_are_refused(levels):
     with pytest.raises(FnsiLabError, match=r"short.npz: 6 periods of 2048 samples, .*l0.npz: 3 of 4096"):
         fnsi_lab.identify([str(levels / "l0.npz"), str(levels / "short.npz")],
                           str(levels / "cubic.yaml"), order=6)
+
+
+def test_levels_locate_together(levels, capsys):
+    """`fnsi-lab locate A B`: the candidates judged on both levels at once; the cubic spring
+    between X2 and X3 comes first and is located."""
+    out = levels / "where.json"
+    assert main(["locate", str(levels / "l0.npz"), str(levels / "l1.npz"), "--config",
+                 str(levels / "cubic.yaml"), "--form", "generic", "--order", "6",
+                 "--json", str(out), "--force"]) == 0
+    best = json.loads(out.read_text())["candidates"][0]
+    assert best["name"] == "X2 - X3" and best["verdict"] == "located"
