@@ -231,9 +231,13 @@ class NestedTest:
                     f"{name} worse than the linear fit ({rows[name]['error_db']:+.1f} dB "
                     f"against {rows[name]['linear_fit_error_db']:+.1f} dB)"
                     for name in sim["worse"])
+            hint = ("" if (self.simulation or {}).get("record") else
+                    "; on its own record the linear fit is that level's best linear "
+                    "approximation: with other levels, --validation NEXT.mcap or several "
+                    "records at once ask whether the model carries (docs/ident.md)")
             return (f"the nonlinear terms lower the noise-weighted residual ({what}, {test}) "
                     f"but the nonlinear model, simulated on {self._simulated_on}, {why}: the "
-                    f"modes are the linear fit's (order {self.order_linear})")
+                    f"modes are the linear fit's (order {self.order_linear}){hint}")
         if self.undetermined and self.p_value is not None and self.p_value < self.significance:
             return (f"the nonlinear terms lower the noise-weighted residual ({what}, {test}) "
                     f"but no coefficient is determined by the data (every verdict: not "
