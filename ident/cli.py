@@ -60,7 +60,7 @@ def add_ident_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--validation", type=opt.INPUT, default=None, metavar="RECORD",
                         help="another record of the structure (e.g. the next force level): "
                              "the nonlinear terms are kept only if the model predicts it at "
-                             "least as well as the linear fit (docs/robust.md)")
+                             "least as well as the linear fit (docs/ident.md)")
     parser.add_argument("--force", action="store_true",
                         help="replace an existing --json / --suggest file")
     parser.add_argument("--quiet", action="store_true", help="no summary on stdout")
