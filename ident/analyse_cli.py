@@ -87,6 +87,8 @@ def print_summary(report: Any, out=None) -> None:
             print("  resonances: " + ", ".join(
                 f"{r.frequency_hz:.4g} Hz ({100 * r.damping_ratio:.2f} %)"
                 for r in rec.resonances), file=out)
+    for note in report.notes:
+        print(f"note: {note}", file=out)
     lv = report.levels
     if lv:
         print("by level (input RMS " + ", ".join(f"{x:.4g}" for x in lv["input_rms"]) + "):",

@@ -45,12 +45,14 @@ class DistortionReport:
     records: list[RecordAnalysis]
     levels: dict | None = None
     timings_s: dict[str, float] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
 
     def to_json(self, spectra: bool = False) -> dict:
         """The JSON of ``fnsi-lab analyse --json`` (layout in docs/discovery.md)."""
         return {"kind": "distortion analysis", "version": JSON_VERSION,
                 "records": [r.to_dict(spectra) for r in self.records],
-                "levels": self.levels, "timings_s": dict(self.timings_s)}
+                "levels": self.levels, "notes": list(self.notes),
+                "timings_s": dict(self.timings_s)}
 
 
 def _input_channel(inp: IdentInput, cfg: IdentConfig | None) -> str:
@@ -157,6 +159,14 @@ def analyse_inputs(inputs: Sequence[IdentInput], cfg: IdentConfig | None = None,
     t0 = time.perf_counter()
     records = [analyse_input(inp, cfg, band_hz=band_hz, alpha=alpha, keep_spectra=keep_spectra)
                for inp in inputs]
-    levels = compare_levels(records) if len(records) >= 2 else None
+    notes = []
+    outputs = [tuple(o.name for o in r.outputs) for r in records]
+    same = all(set(o) == set(outputs[0]) for o in outputs) and all(
+        r.input_channel == records[0].input_channel for r in records)
+    if len(records) >= 2 and not same:   # levels of one structure share their channels
+        notes.append("not compared by level: the records do not share their outputs and "
+                     "drive (" + "; ".join(f"{r.path}: {', '.join(o)} / {r.input_channel}"
+                                           for r, o in zip(records, outputs)) + ")")
+    levels = compare_levels(records) if len(records) >= 2 and same else None
     return DistortionReport(records=records, levels=levels,
-                            timings_s={"analysis": time.perf_counter() - t0})
+                            timings_s={"analysis": time.perf_counter() - t0}, notes=notes)

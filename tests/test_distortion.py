@@ -282,3 +282,24 @@ def test_aircraft_joint_levels(tmp_path):
         k = int(np.argmin(np.abs(f_true - r["frequency_hz"])))
         assert abs(r["frequency_hz"] / f_true[k] - 1) < 0.005, (r, f_true[k])
         assert 0.6 * z_true[k] < r["damping_ratio"] < 1.4 * z_true[k], (r, z_true[k])
+
+
+def test_records_of_two_structures_are_not_compared_by_level(tmp_path):
+    """Two records with other outputs and drives are analysed each, not compared by level
+    (a "resonance shift" between two structures means nothing); the note names both."""
+    from fnsi_lab.ident.core.io import input_from_arrays
+
+    def record(names, drive, seed):
+        rng = np.random.default_rng(seed)
+        u = np.tile(np.cos(2 * np.pi * 5 * np.arange(256) / 256.0), 3)[:, None]
+        y = np.hstack([u * (1 + k) for k in range(len(names))]) + 1e-6 * rng.standard_normal(
+            (u.size, len(names)))
+        return input_from_arrays({"u": u, "y": y, "fs": 256.0, "N": 256, "channels": names,
+                                  "input_channels": [drive]}, f"{drive}.npz")
+
+    import fnsi_lab
+
+    rep = fnsi_lab.analyse([record(["a", "b"], "F1", 0), record(["c"], "F2", 1)])
+    assert rep.levels is None
+    (note,) = rep.to_json()["notes"]
+    assert "not compared by level" in note and "F1.npz: a, b / F1" in note
