@@ -312,6 +312,19 @@ def close_stream(rec: rr.RecordingStream, sinks: ViewerSinks, *, wait_web_s: flo
 
 
 # ---------------------------------------------------------------------------- rrd reading
+def _rrd_reader(path: str | Path) -> Any:
+    """A ``rerun.chunk.RrdReader`` of ``path``, without the reader's warning about files
+    written without a footer (every file our recorders stream; it printed a source line
+    before our own message on a damaged file)."""
+    import warnings
+
+    from rerun.chunk import RrdReader
+
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*no footer/manifest.*")
+        return RrdReader(str(path))
+
+
 def rrd_entities(path: str | Path) -> dict[str, int]:
     """Entity path -> number of rows (static and temporal) in an .rrd file.
 
@@ -320,13 +333,11 @@ def rrd_entities(path: str | Path) -> dict[str, int]:
     DataFileError
         The file is missing or not an .rrd.
     """
-    from rerun.chunk import RrdReader
-
     path = Path(path)
     if not path.is_file():
         raise DataFileError(f"{path}: no such file")
     try:
-        store = RrdReader(str(path)).stream().collect()
+        store = _rrd_reader(path).stream().collect()
     except Exception as exc:  # the reader raises plain exceptions on bad files
         raise DataFileError(f"{path}: not a readable .rrd file ({exc})") from None
     counts: dict[str, int] = {}
@@ -356,9 +367,8 @@ def signal_groups(entities: Any) -> tuple[str, ...]:
 
 def rrd_text(path: str | Path, entity: str) -> str | None:
     """The last TextDocument text logged at ``entity`` in an .rrd file, if any."""
-    from rerun.chunk import RrdReader
 
-    store = RrdReader(str(path)).stream().collect()
+    store = _rrd_reader(path).stream().collect()
     text = None
     for chunk in store.stream():
         if chunk.entity_path != entity:
@@ -376,14 +386,13 @@ def signal_layout(path: str | Path) -> tuple[dict[str, int], dict[str, str]]:
     """Channels per signal group and the group's unit, from the series names an .rrd holds
     (``viewer.log.log_signal_styles`` names a channel ``NC2W-Z [mm]``): the blueprint
     arguments ``group_sizes`` and ``group_units`` of the recording's own layout."""
-    from rerun.chunk import RrdReader
 
     from fnsi_lab.viewer import paths
 
     prefix = paths.SIGNALS + "/"
     sizes: dict[str, int] = {}
     units: dict[str, str] = {}
-    for chunk in RrdReader(str(path)).stream().collect().stream():
+    for chunk in _rrd_reader(path).stream().collect().stream():
         entity = str(chunk.entity_path)
         if not entity.startswith(prefix) or "/" in entity[len(prefix):]:
             continue
@@ -437,7 +446,6 @@ def _cmd_view(args: argparse.Namespace) -> int:
         return 0
     if args.connect or args.serve_web:
         import rerun as rr
-        from rerun.chunk import RrdReader
 
         from fnsi_lab.viewer.blueprint import blueprint
 
@@ -445,7 +453,7 @@ def _cmd_view(args: argparse.Namespace) -> int:
         sizes, units = signal_layout(args.file)
         rec, sinks = open_stream(args, blueprint(signal_groups(counts), group_sizes=sizes,
                                                  group_units=units))
-        rr.send_chunks(RrdReader(str(args.file)).stream().collect(), recording=rec)
+        rr.send_chunks(_rrd_reader(args.file).stream().collect(), recording=rec)
         for note in sinks.notes:
             print(note, file=sys.stderr)
         if sinks.web_url:
