@@ -8,6 +8,8 @@ Run::
     python bench/aircraft_validation.py --joint jenkins-stop   # Jenkins + a stop, all auto
     python bench/aircraft_validation.py --decide-on next  # the nested test's simulation
                                                           # check on the next level's record
+    python bench/aircraft_validation.py --together 40 55 69   # one model for three levels,
+                                                              # validated on the others
 
 Steps (the same entry points as the command line):
 
@@ -71,8 +73,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--decide-on", choices=("own", "next"), default="own",
                     help="the record of the nested test's simulation check: the identified "
                          "one (default) or the next level's")
+    ap.add_argument("--together", type=float, nargs="+", default=None, metavar="LEVEL",
+                    help="identify these levels together (one model; docs/ident.md, 'Several "
+                         "records at once') and validate it on every other level")
     args = ap.parse_args(argv)
     rows = write_campaign(args.work, args.levels, force=True)
+    if args.together:
+        return _together(args, rows)
     model = aircraft_model()
     truth = model.structure.modes.frequency_hz
     truth = truth[(truth > 2) & (truth < 15)]
@@ -176,6 +183,51 @@ def main(argv: list[str] | None = None) -> int:
             spread[float(f1)] = 100 * (max(found) - min(found)) / float(np.mean(found))
             print(f"underlying linear {f1:6.2f} Hz over the levels with a nonlinear answer: "
                   f"{len(found)} levels, spread {spread[float(f1)]:.2f} %")
+    print(f"wrote {out}")
+    return 0
+
+
+def _together(args, rows) -> int:
+    """``--together``: the chosen levels identified as one input, validated on the others;
+    prints the decision, the stiffness, the joint-free modes and the validation errors, and
+    writes ``bench/out/aircraft_together[-JOINT].json``."""
+    import fnsi_lab
+    from fnsi_lab.daq.sim.aircraft import aircraft_model
+    from fnsi_lab.outputs import dumps
+
+    chosen = [r for r in rows if r["level_n_rms"] in set(args.together)]
+    others = [r for r in rows if r not in chosen]
+    t0 = time.perf_counter()
+    res = fnsi_lab.identify([str(args.work / r["file"]) for r in chosen],
+                            config=str(args.work / f"aircraft-{args.joint}.yaml"))
+    seconds = time.perf_counter() - t0
+    doc = res.to_json()
+    nvl = doc.get("nonlinear_vs_linear") or {}
+    free = np.asarray(aircraft_model().joint_free_modes_hz())
+    free = free[(free > 2) & (free < 15)]
+    entry = {"levels_n_rms": [r["level_n_rms"] for r in chosen], "seconds": seconds,
+             "decision": nvl.get("decision"), "statement": nvl.get("statement"),
+             "coefficients": [{k: c.get(k) for k in ("name", "value", "verdict")}
+                              for c in res.coefficients],
+             "modes": _modes(res, free), "validation": {}}
+    for r in others:
+        v = fnsi_lab.validate_model(res, args.work / r["file"])
+        entry["validation"][r["level_n_rms"]] = {"converged": v.converged, "outputs": v.outputs}
+    out = ROOT / "out" / ("aircraft_together.json" if args.joint == "jenkins"
+                          else f"aircraft_together-{args.joint}.json")
+    out.parent.mkdir(exist_ok=True)
+    out.write_text(dumps(entry, indent=2))
+    print(f"levels {entry['levels_n_rms']} together ({seconds:.0f} s): {entry['decision']}; "
+          + ", ".join(f"{c['name']} {c['value']:.3g} ({c['verdict']})"
+                      for c in entry["coefficients"]))
+    print("  joint-free modes (truth: read): " + ", ".join(
+        f"{t:.2f}: {f:.3f}" for t, f in entry["modes"].items()))
+    for level, v in entry["validation"].items():
+        errs = "/".join(f"{o['error_db']:+.1f}" if o.get("error_db") is not None else "-"
+                        for o in v["outputs"])
+        fit = "/".join(f"{o['linear_fit_error_db']:+.1f}"
+                       if o.get("linear_fit_error_db") is not None else "-" for o in v["outputs"])
+        print(f"  on {level:g} N: the answer {errs} dB, its linear fit {fit} dB")
     print(f"wrote {out}")
     return 0
 
