@@ -78,6 +78,22 @@ def test_not_identifiable_by_contact_or_spread_and_failures():
     assert c.failed == [("broken", "DataFileError: bad chunk")]
 
 
+def test_not_identifiable_when_the_runs_say_so():
+    """A level whose every run gave the coefficient the verdict `not identifiable` (e.g. the
+    nested test kept the linear fit there) is flagged with the result's own reason, even when
+    its contact and spread would pass."""
+    runs = [_run("lin", 1.0, 100.0, 1.0, 0.3, [10.0]), _run("ok", 10.0, 100.0, 1.0, 0.3, [10.0])]
+    runs[0][1]["coefficients"] = [{"name": "stop:neg", "verdict": "not identifiable",
+                                   "verdict_reason": "the nonlinear terms are not supported "
+                                                     "by the data (residual 2x); more"}]
+    runs[1][1]["coefficients"] = [{"name": "stop:neg", "verdict": "identified"}]
+    c = _campaign(runs)
+    by_level = {v.level: v for v in c.coefficients["stop:neg"]}
+    assert by_level[1.0].not_identifiable == ("the result's verdict: the nonlinear terms are "
+                                              "not supported by the data")
+    assert by_level[10.0].not_identifiable is None and len(c.warnings) == 1
+
+
 def test_frf_deviation_is_zero_for_one_linear_system_and_measures_a_change():
     same = _campaign([_run("a", 1.0, 1, 0.01, 0.5, [20.0]), _run("b", 2.0, 1, 0.01, 0.5, [20.0])])
     assert [r.deviation for r in same.frfs] == pytest.approx([0.0, 0.0], abs=1e-12)

@@ -14,7 +14,8 @@ campaign table and the runs' JSON results into:
   deviation from the campaign mean, relative to its RMS level;
 - warnings where a coefficient is not identifiable at a level: its stop hardly ever
   closed (contact fraction below ``min_contact``), or its spread larger than
-  ``max_relative_spread`` times its mean, or the identification failed.
+  ``max_relative_spread`` times its mean, or every run's own verdict is ``not
+  identifiable``, or the identification failed.
 
 Everything here is arrays and dicts; reading and writing happen in :mod:`.cli`.
 """
@@ -192,6 +193,16 @@ def _read_result(path: str, run: Any = None) -> dict[str, Any]:
     return result
 
 
+def _verdict(result: Mapping[str, Any] | None, name: str) -> tuple[str, str]:
+    """A coefficient's verdict in one run's result and the first clause of its reason
+    (``('', '')`` when the result does not give one)."""
+    for c in (result or {}).get("coefficients") or []:
+        if c.get("name") == name and c.get("verdict"):
+            reason = str(c.get("verdict_reason") or "").split(";")[0].split(" (")[0]
+            return str(c["verdict"]), reason or str(c["verdict"])
+    return "", ""
+
+
 def compare_campaign(rows: Sequence[Mapping[str, Any]], *, output: str | None = None,
                      driving_points: Mapping[str, str] | None = None,
                      max_relative_spread: float = 0.1, min_contact: float = 0.001,
@@ -247,6 +258,7 @@ def compare_campaign(rows: Sequence[Mapping[str, Any]], *, output: str | None = 
                                spread=float(np.mean(spreads)) if spreads else None,
                                scatter=scatter, contact=min(contacts) if contacts else None)
             per_level.append(value)
+            verdicts = [_verdict(loaded.get(r["result"]), name) for r in at]
             if value.contact is not None and value.contact < min_contact:
                 value.not_identifiable = (f"its stop is closed {100 * value.contact:.2g} % of "
                                           f"the time (< {100 * min_contact:g} %)")
@@ -254,6 +266,9 @@ def compare_campaign(rows: Sequence[Mapping[str, Any]], *, output: str | None = 
                 value.not_identifiable = (f"spread {value.spread:.3g} is "
                                           f"{value.spread / max(abs(mean), 1e-300):.0%} of "
                                           f"|mean| {abs(mean):.3g} (> {max_relative_spread:.0%})")
+            elif verdicts and all(v[0] == "not identifiable" for v in verdicts):
+                # the identification said so itself (docs/ident.md: verdicts, nested test)
+                value.not_identifiable = f"the result's verdict: {verdicts[0][1]}"
             if value.not_identifiable:
                 warnings.append(f"{name} at {_level_text(level)}: not identifiable, "
                                 f"{value.not_identifiable}")
