@@ -75,10 +75,11 @@ def recorded_dofs(result: ResultArrays, recording: str | None) -> dict[str, tupl
     """Node and direction from the channel table of the identified recording.
 
     ``recording`` is given (``--recording``) or, by default, the result's input when it is
-    an existing ``.mcap`` file (as written, or relative to the result file's folder).
+    an existing ``.mcap`` file (as written, or relative to the result file's folder; the
+    first of several records identified together).
     """
-    if recording is None:
-        given = Path(result.input_path) if result.input_path else None
+    if recording is None:   # several records identified together: the first one's table
+        given = Path(result.input_path.split(" + ")[0]) if result.input_path else None
         if given is None or given.suffix.lower() != ".mcap":
             return {}
         found = [p for p in (given, Path(result.path).parent / given) if p.is_file()]
