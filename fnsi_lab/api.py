@@ -201,7 +201,8 @@ def identify(source: Any, config: Any = None, *, order: int | None = None,
         other = _as_input(validation, samples_per_period or (cfg.samples_per_period if cfg
                                                               else None))
         validation_input(other, rc.outputs or inp.output_channels,
-                         [i.name for i in rc.inputs] or inp.input_channels, inp.sample_rate_hz)
+                         [i.name for i in rc.inputs] or inp.input_channels, inp.sample_rate_hz,
+                         rc.output_quantity or inp.output_quantity)
     load_s = time.perf_counter() - t0
     with restored_blas_threads():
         if blas_threads is not None:

@@ -72,8 +72,8 @@ def simulated_against_linear(session: IdentSession, model: StateSpaceModel,
                              linear_model: StateSpaceModel,
                              validation: IdentInput | None = None) -> dict:
     """The nonlinear model and the linear fit simulated on the session's own record (or on
-    ``validation``, another record), as ``fnsi-lab validate`` simulates another record: harmonic balance over
-    every line, the nonlinear forces reading the model's own motion
+    ``validation``, another record), as ``fnsi-lab validate`` simulates another record:
+    harmonic balance over every line, the nonlinear forces reading the model's own motion
     (:mod:`ident.refine.validation`).
 
     On its own record the linear fit is the best linear approximation at that very level,
@@ -98,7 +98,7 @@ def simulated_against_linear(session: IdentSession, model: StateSpaceModel,
     name = None
     if validation is not None:
         inp = validation_input(validation, data.output_names, data.input_names,
-                               session.input.sample_rate_hz)
+                               session.input.sample_rate_hz, data.output_quantity)
         name = str(validation.path or "the validation record")
     transient = (cfg.transient_periods if cfg.transient_periods is not None
                  else inp.transient_periods)
@@ -131,9 +131,11 @@ def simulated_against_linear(session: IdentSession, model: StateSpaceModel,
 
 
 def validation_input(record: IdentInput, output_names: Sequence[str] | None,
-                     input_names: Sequence[str] | None, sample_rate_hz: float) -> IdentInput:
+                     input_names: Sequence[str] | None, sample_rate_hz: float,
+                     output_quantity: str | None = None) -> IdentInput:
     """The validation record's channels in the identified record's order (None: all of
-    them); a record without them or at another rate is refused with one line naming it."""
+    them); a record without them, at another rate or measuring another quantity is refused
+    with one line naming it."""
     from fnsi_lab.ident.core.io import select_channels
     from fnsi_lab.ident.errors import IdentDataError
 
@@ -149,6 +151,9 @@ def validation_input(record: IdentInput, output_names: Sequence[str] | None,
         raise IdentDataError(f"{name}: sampled at {out.sample_rate_hz:g} Hz but the identified "
                              f"record at {sample_rate_hz:g} Hz (fix: validate on a record of "
                              "the same rate)")
+    if output_quantity and out.output_quantity and out.output_quantity != output_quantity:
+        raise IdentDataError(f"{name}: its outputs are {out.output_quantity}, the identified "
+                             f"record's {output_quantity} (fix: a record of the same sensors)")
     return out
 
 
