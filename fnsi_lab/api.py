@@ -194,6 +194,10 @@ def identify(source: Any, config: Any = None, *, order: int | None = None,
                                   if cfg is None
                                              else None))
     other = None
+    if validation is not None and isinstance(source, (str, os.PathLike)) and isinstance(
+            validation, (str, os.PathLike)) and Path(source).resolve() == Path(
+                validation).resolve():
+        validation = None     # the identified record itself: the check's default
     if validation is not None:   # its channels and rate checked before any work
         from fnsi_lab.ident.linear_comparison import validation_input
 
@@ -202,7 +206,8 @@ def identify(source: Any, config: Any = None, *, order: int | None = None,
                                                               else None))
         validation_input(other, rc.outputs or inp.output_channels,
                          [i.name for i in rc.inputs] or inp.input_channels, inp.sample_rate_hz,
-                         rc.output_quantity or inp.output_quantity)
+                         rc.output_quantity or inp.output_quantity, units=inp.channel_units,
+                         transient_periods=rc.transient_periods)
     load_s = time.perf_counter() - t0
     with restored_blas_threads():
         if blas_threads is not None:

@@ -253,9 +253,13 @@ def _print_auto_summary(res: Any, out=None, warnings: list | tuple = (),
     which = f"the {answer} model at order {res.final_model.order}" + (
         " (the reduction did not make the coefficients more consistent)"
         if res.reduced is not None and answer == "full" else "")
-    print(f"answer: the linear fit at order {doc.get('order')} (its nonlinear model: {which};"
-          " nonlinear vs linear below)" if linear and doc.get("coefficients") is not None
-          else f"answer: {which}", file=out)
+    if linear:
+        kept = f"its nonlinear model: {which}" if doc.get("coefficients") else \
+            "no nonlinear element kept"
+        print(f"answer: the linear fit at order {doc.get('order')} ({kept}; nonlinear vs "
+              "linear below)", file=out)
+    else:
+        print(f"answer: {which}", file=out)
     rows = [("selected", "selected")]
     if res.mdi_order != res.selected_order or answer == "full":
         rows.append((f"order {res.mdi_order}" if res.mdi_order != res.selected_order

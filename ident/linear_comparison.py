@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import replace
-from typing import Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -98,7 +98,9 @@ def simulated_against_linear(session: IdentSession, model: StateSpaceModel,
     name = None
     if validation is not None:
         inp = validation_input(validation, data.output_names, data.input_names,
-                               session.input.sample_rate_hz, data.output_quantity)
+                               session.input.sample_rate_hz, data.output_quantity,
+                               units=session.input.channel_units,
+                               transient_periods=cfg.transient_periods)
         name = str(validation.path or "the validation record")
     transient = (cfg.transient_periods if cfg.transient_periods is not None
                  else inp.transient_periods)
@@ -124,6 +126,7 @@ def simulated_against_linear(session: IdentSession, model: StateSpaceModel,
             for r in output_errors(sim, list(data.output_names), fit)]
     converged = bool(sim.info.get("converged", True))
     return {"method": sim.method, "record": name, "converged": converged,
+            "several_records": " + " in str(session.input.path),
             "reason": None if converged else sim.info.get("reason"),
             "iterations": sim.info.get("iterations"), "outputs": rows,
             "worse": [r["name"] for r in rows if converged
@@ -132,10 +135,13 @@ def simulated_against_linear(session: IdentSession, model: StateSpaceModel,
 
 def validation_input(record: IdentInput, output_names: Sequence[str] | None,
                      input_names: Sequence[str] | None, sample_rate_hz: float,
-                     output_quantity: str | None = None) -> IdentInput:
+                     output_quantity: str | None = None, *,
+                     units: Mapping[str, str] | None = None,
+                     transient_periods: int | None = None) -> IdentInput:
     """The validation record's channels in the identified record's order (None: all of
-    them); a record without them, at another rate or measuring another quantity is refused
-    with one line naming it."""
+    them); a record without them, at another rate, measuring another quantity, in other
+    declared units, or with no period left after the transient ones is refused with one
+    line naming it."""
     from fnsi_lab.ident.core.io import select_channels
     from fnsi_lab.ident.errors import IdentDataError
 
@@ -154,6 +160,17 @@ def validation_input(record: IdentInput, output_names: Sequence[str] | None,
     if output_quantity and out.output_quantity and out.output_quantity != output_quantity:
         raise IdentDataError(f"{name}: its outputs are {out.output_quantity}, the identified "
                              f"record's {output_quantity} (fix: a record of the same sensors)")
+    for ch, unit in (units or {}).items():
+        other = (out.channel_units or {}).get(ch)
+        if other and unit and other != unit:
+            raise IdentDataError(f"{name}: channel {ch} in {other}, the identified record's in "
+                                 f"{unit} (fix: a record in the same units)")
+    skip = transient_periods if transient_periods is not None else out.transient_periods
+    periods = int(np.asarray(out.u).shape[1])
+    if periods - int(skip or 0) < 1:
+        raise IdentDataError(f"{name}: {periods} period(s) of {out.samples_per_period} samples "
+                             f"and {skip} transient: none left to predict (fix: give the file "
+                             "its period N, or a record with more periods)")
     return out
 
 

@@ -144,6 +144,11 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
     session.timings_s["coefficients"] = time.perf_counter() - t2
     compare = session.config.compare_linear
     nested = None
+    if validation is not None and not (session.config.nonlinearities and compare):
+        session.warnings.append(
+            f"the validation record {validation.path} was not used: "
+            + ("no nonlinear element to check" if not session.config.nonlinearities
+               else "compare_linear: false skips the nested test and its simulation check"))
     if session.config.nonlinearities and compare:
         verdicts = [c.get("verdict") for c in coefficient_summaries(spectra, session)]
         if (compare == "auto" and validation is None and verdicts

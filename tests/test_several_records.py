@@ -46,7 +46,7 @@ def test_two_levels_give_one_model(levels, tmp_path, capsys):
 
 def test_records_of_another_plan_are_refused(levels):
     """Another period length: one line naming the record and the fix, before any work."""
-    with pytest.raises(FnsiLabError, match=r"short.npz: 6 periods of 2048 samples, .*l0.npz: 3 of 4096"):
+    with pytest.raises(FnsiLabError, match=r"short.npz: 6 period\(s\) of 2048 samples, .*l0.npz: 3 of 4096"):
         fnsi_lab.identify([str(levels / "l0.npz"), str(levels / "short.npz")],
                           str(levels / "cubic.yaml"), order=6)
 
@@ -60,3 +60,53 @@ def test_levels_locate_together(levels, capsys):
                  "--json", str(out), "--force"]) == 0
     best = json.loads(out.read_text())["candidates"][0]
     assert best["name"] == "X2 - X3" and best["verdict"] == "located"
+
+
+def test_records_that_cannot_be_one_input_are_refused(levels, tmp_path):
+    """The same file twice (its noise counted as independent twice), another multisine grid
+    in a file that does not declare its lines (the drive carries no power on half of the
+    declared grid), other declared units: one line naming the record, before any work."""
+    from fnsi_lab.ident.core.io import input_from_arrays, stack_records
+    from fnsi_lab.inputs import load_input
+
+    cfg = str(levels / "cubic.yaml")
+    with pytest.raises(FnsiLabError, match=r"l0.npz: given twice"):
+        fnsi_lab.identify([str(levels / "l0.npz")] * 2, cfg, order=6)
+    base = load_input(str(levels / "l0.npz"))
+    declared = replace_lines(base, np.arange(25, 492))          # 3-60 Hz on 4096 at 500 Hz
+    with np.load(levels / "l1.npz") as z:
+        u = np.fft.rfft(z["u"][:, 0].reshape(-1, 4096), axis=1)
+        u[:, 1::2] = 0                                            # odd lines gone
+        odd = {**{k: z[k] for k in z.files}, "u": np.fft.irfft(u, n=4096, axis=1).reshape(-1, 1)}
+    with pytest.raises(FnsiLabError, match=r"excites other lines than"):
+        stack_records([declared, input_from_arrays(odd, "odd.npz")])
+    # the other level's file, undeclared, drives every declared line: stacked
+    assert stack_records([declared, load_input(str(levels / "l1.npz"))]).u.shape[0] == 2
+    other = load_input(str(levels / "l1.npz"))
+    mm = _with_units(declared, "mm")
+    m = _with_units(other, "m")
+    with pytest.raises(FnsiLabError, match=r"channel X1 in m, .* in mm"):
+        stack_records([mm, m])
+
+
+def replace_lines(inp, lines):
+    from dataclasses import replace
+
+    return replace(inp, excited_lines=np.asarray(lines))
+
+
+def _with_units(inp, unit):
+    from dataclasses import replace
+
+    return replace(inp, channel_units={c: unit for c in inp.output_channels})
+
+
+def test_a_validation_record_with_nothing_to_predict_is_refused(levels, tmp_path):
+    """`validation=` a file of one period (its only period the transient one): refused before
+    any work, where it used to end as a model "without a steady state"."""
+    with np.load(levels / "l1.npz") as z:
+        np.savez(tmp_path / "one.npz", **{k: z[k] for k in z.files if k not in ("u", "y")},
+                 u=z["u"][:4096], y=z["y"][:4096])
+    with pytest.raises(FnsiLabError, match=r"one.npz: 1 period\(s\) .* none left to predict"):
+        fnsi_lab.identify(str(levels / "l0.npz"), str(levels / "cubic.yaml"), order=6,
+                          validation=str(tmp_path / "one.npz"))

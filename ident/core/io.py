@@ -201,7 +201,16 @@ def stack_records(records: Sequence[IdentInput]) -> IdentInput:
     first = records[0]
     if len(records) == 1:
         return first
+    seen: set[str] = set()
+    for rec in records:   # one record twice would count its noise as independent twice
+        key = str(Path(rec.path).resolve()) if rec.path and Path(rec.path).exists() else ""
+        if key and key in seen:
+            raise IdentDataError(f"{rec.path}: given twice (fix: each record once)")
+        seen.add(key)
     outs, ins = list(first.output_channels), list(first.input_channels)
+    units = _common_units(records, outs + ins)
+    grid_from = next((r for r in records if r.excited_lines is not None), None)
+    grid = None if grid_from is None else np.asarray(grid_from.excited_lines)
     us, ys = [], []
     for rec in records:
         name = rec.path or "record"
@@ -211,20 +220,20 @@ def stack_records(records: Sequence[IdentInput]) -> IdentInput:
                                  "of one rate)")
         if (rec.samples_per_period != first.samples_per_period
                 or rec.u.shape[1] != first.u.shape[1]):
-            raise IdentDataError(f"{name}: {rec.u.shape[1]} periods of {rec.samples_per_period}"
-                                 f" samples, {first.path}: {first.u.shape[1]} of "
-                                 f"{first.samples_per_period} (fix: records of one test plan, "
-                                 "the same periods)")
+            raise IdentDataError(f"{name}: {rec.u.shape[1]} period(s) of "
+                                 f"{rec.samples_per_period} samples, {first.path}: "
+                                 f"{first.u.shape[1]} of {first.samples_per_period} (fix: records "
+                                 "of one test plan; an array file without N gives it in the "
+                                 "file, or samples_per_period: in the config)")
         if (rec.output_quantity and first.output_quantity
                 and rec.output_quantity != first.output_quantity):
             raise IdentDataError(f"{name}: {rec.output_quantity} outputs, {first.path}: "
-                                 f"{first.output_quantity}")
+                                 f"{first.output_quantity} (fix: records of the same sensors)")
         picked = select_channels(rec, outputs=outs, inputs=ins)
-        a, b = first.excited_lines, rec.excited_lines
-        if a is not None and b is not None and not np.array_equal(np.asarray(a),
-                                                                  np.asarray(b)):
-            raise IdentDataError(f"{name}: excites other lines than {first.path} (fix: records "
-                                 "of one multisine grid; other phases are fine)")
+        if not _same_grid(rec, grid):
+            raise IdentDataError(f"{name}: excites other lines than "
+                                 f"{grid_from.path if grid_from else first.path} (fix: records of "
+                                 "one multisine grid; other phases are fine)")
         us.append(np.asarray(picked.u))
         ys.append(np.asarray(picked.y))
     transient = first.transient_periods
@@ -233,10 +242,57 @@ def stack_records(records: Sequence[IdentInput]) -> IdentInput:
         transient = max(declared) if declared else None
     lines = next((r.excited_lines for r in records if r.excited_lines is not None), None)
     quantity = next((r.output_quantity for r in records if r.output_quantity), None)
+    # simulated records of one structure share their elements (other levels: other values
+    # of contact and slip only): the first truth keeps the basis a config-less run uses
+    elements = [[(e.get("name"), e.get("kind")) for e in (r.truth or {}).get("nonlinearities")
+                 or []] for r in records]
+    truth = first.truth if all(e == elements[0] for e in elements) else None
+    undeclared = [str(r.path) for r in records if not r.channel_units]
+    notes = tuple(n for r in records for n in r.notes) + ((
+        f"{', '.join(undeclared)} declare no units: taken as "
+        f"{', '.join(sorted(set(units.values())))} like the other records (check: a record "
+        "in m beside one in mm is a factor 1000)",) if units and undeclared else ())
     return replace(first, u=np.concatenate(us, axis=0), y=np.concatenate(ys, axis=0),
-                   transient_periods=transient, excited_lines=lines, truth=None,
+                   transient_periods=transient, excited_lines=lines, truth=truth,
                    output_quantity=quantity, path=" + ".join(str(r.path) for r in records),
-                   notes=tuple(n for r in records for n in r.notes))
+                   channel_units=units, notes=notes)
+
+
+def _common_units(records: Sequence[IdentInput], names: Sequence[str]) -> dict[str, str]:
+    """The channels' units where the records declare them; records that declare other units
+    for a channel are refused (a record in m beside one in mm is a factor 1000)."""
+    units: dict[str, str] = {}
+    where: dict[str, str] = {}
+    for rec in records:
+        for ch in names:
+            unit = (rec.channel_units or {}).get(ch)
+            if not unit:
+                continue
+            if ch in units and units[ch] != unit:
+                raise IdentDataError(f"{rec.path}: channel {ch} in {unit}, {where[ch]} in "
+                                     f"{units[ch]} (fix: records in the same units)")
+            units.setdefault(ch, unit)
+            where.setdefault(ch, str(rec.path))
+    return units
+
+
+def _same_grid(rec: IdentInput, grid: np.ndarray | None) -> bool:
+    """Whether ``rec`` excites the lines ``grid`` (another record's declared grid): its own
+    declared lines equal them, or, undeclared, its drive carries power on all but 2 % of
+    them (more than 1e-3 of their median power; a measured force dips at the structure's
+    resonances). Without a declared grid anywhere there is nothing to compare."""
+    if grid is None or not grid.size:
+        return True
+    if rec.excited_lines is not None:
+        return bool(np.array_equal(np.asarray(rec.excited_lines), grid))
+    u = np.asarray(rec.u, float)
+    skip = int(rec.transient_periods or 0)
+    steady = u[:, skip:] if u.shape[1] > skip else u
+    power = np.mean(np.abs(np.fft.rfft(steady, axis=2)) ** 2, axis=(0, 1)).sum(axis=-1)
+    if grid.max() >= power.size:
+        return False
+    on = power[grid]
+    return bool(np.mean(on > 1e-3 * np.median(on)) >= 0.98)
 
 
 def select_channels(inp: IdentInput, *, outputs: Sequence[str] | None = None,

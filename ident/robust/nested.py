@@ -190,7 +190,8 @@ class NestedTest:
     def _simulated_on(self) -> str:
         """Which record the simulation check predicted, in words."""
         record = (self.simulation or {}).get("record")
-        return "its own record" if not record else f"the validation record {Path(record).name}"
+        return ("its own record" if not record else "the validation record "
+                + " + ".join(Path(p).name for p in str(record).split(" + ")))
 
     @property
     def statement(self) -> str:
@@ -231,7 +232,8 @@ class NestedTest:
                     f"{name} worse than the linear fit ({rows[name]['error_db']:+.1f} dB "
                     f"against {rows[name]['linear_fit_error_db']:+.1f} dB)"
                     for name in sim["worse"])
-            hint = ("" if (self.simulation or {}).get("record") else
+            sim = self.simulation or {}
+            hint = ("" if sim.get("record") or sim.get("several_records") else
                     "; on its own record the linear fit is that level's best linear "
                     "approximation: with other levels, --validation NEXT.mcap or several "
                     "records at once ask whether the model carries (docs/ident.md)")
