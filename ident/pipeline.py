@@ -122,7 +122,7 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
     if cfg.nonlinearities_auto:   # the element from the data: located, then a spline there
         from fnsi_lab.ident.locate import with_located_element
         cfg, located = with_located_element(
-            inp, cfg, progress=(lambda note: None) if progress else None)
+            inp, cfg, order=order, progress=(lambda note: None) if progress else None)
     # without any order given, the criterion picks the search's (at most search_order)
     # a basis parameter the data cannot tell leaves its element out: at worst the linear answer
     session = prepare_session(inp, cfg, search_order=search_order,

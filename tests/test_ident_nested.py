@@ -135,3 +135,26 @@ def test_match_modes_and_parameter_count():
         d_d = np.zeros((3, 3))
     assert parameter_count(Model, d_zero=False) == 10 * 6 + 9
     assert parameter_count(Model, d_zero=True) == 60
+
+
+def test_an_output_far_below_the_others_does_not_veto():
+    """The simulation check's veto (docs/ident.md): an output predicted worse counts unless
+    its extra error energy is below 1 % of the linear fit's error energy over all outputs
+    (one unit). Numbers of the two cases that set it: the SmallSat's in-plane channel, 70 dB
+    below the axial ones, 1 dB worse while the axial one is 33 dB better (negligible); the
+    GVT payload at 84 N, -4.8 against -7.3 dB, 17 % of the linear fit's error energy (veto).
+    With outputs in different units nothing can be added: every worse output vetoes."""
+    from fnsi_lab.ident.linear_comparison import worse_outputs
+
+    def row(name, err, lin):
+        return {"name": name, "error_rms": err, "linear_fit_error_rms": lin}
+
+    smallsat = [row("Z", 1.0 * 10 ** (-47.5 / 20), 1.0 * 10 ** (-14.9 / 20)),
+                row("X", 3e-4 * 10 ** (-9.0 / 20), 3e-4 * 10 ** (-10.1 / 20))]
+    assert worse_outputs(smallsat) == ([], ["X"])
+    assert worse_outputs(smallsat, common_unit=False) == (["X"], [])
+    gvt = [row("drive", 0.2 * 10 ** (-12.0 / 20), 0.2 * 10 ** (-11.9 / 20)),
+           row("wing", 0.2 * 10 ** (-12.0 / 20), 0.2 * 10 ** (-11.5 / 20)),
+           row("payload", 0.09 * 10 ** (-4.8 / 20), 0.09 * 10 ** (-7.3 / 20))]
+    assert worse_outputs(gvt) == (["payload"], [])
+    assert worse_outputs([row("y", None, 1.0)]) == ([], [])

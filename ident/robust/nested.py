@@ -219,6 +219,11 @@ class NestedTest:
                            "least as well as the linear fit (" + ", ".join(
                                f"{r['name']} {r['error_db']:+.1f} dB against "
                                f"{r['linear_fit_error_db']:+.1f} dB" for r in rows) + ")")
+            small = (self.simulation or {}).get("worse_negligible") or []
+            if small:
+                checked += (f"; simulated, it predicts {', '.join(small)} slightly worse than "
+                            "the linear fit (each below 1 % of the linear fit's error energy: "
+                            "see simulation)")
             return (f"the nonlinear terms are supported: noise-weighted residual {what} "
                     f"({test}){extra}{checked}")
         if self.simulation_rejected:
