@@ -141,3 +141,16 @@ def test_export_refuses_one_name_for_the_uff_file_and_the_csv_folder(chain, tmp_
     target = tmp_path / "out.uff"
     assert main(["export", str(res), "--uff", str(target), "--csv", str(target)]) == 2
     assert "both name" in capsys.readouterr().err and not target.exists()
+
+
+def test_a_spline_is_ordered_by_the_criterion_alone(chain, tmp_path):
+    """The coefficient-consistency gate reads the split between force and basis columns; a
+    spline's hinge slopes spread with the curve's shape and the gate kept degenerate low
+    orders (docs/robust.md): with a spline the selected order is the criterion's."""
+    cfg = tmp_path / "spline.yaml"
+    cfg.write_text(CONFIG.replace("kind: polynomial, exponent: 3", "kind: spline, knots: 6"))
+    res = fnsi_lab.identify(str(chain / "chain.npz"), str(cfg), orders="2:16").to_json()
+    assert res["order_selection"] == "ic" and res["selected_order"] == res["ic_order"]
+    cubic = fnsi_lab.identify(str(chain / "chain.npz"), str(chain / "cubic.yaml"),
+                              orders="2:16").to_json()
+    assert cubic["order_selection"] == "consistent"
