@@ -319,13 +319,9 @@ def locate(source: Any, config: Any = None, *, candidates: Any = "all",
                              "of a YAML/JSON list of location vectors)")
         source = os.fspath(candidates)
         candidates = loc.read_candidates_file(source)
-        names = list(cfg.outputs or inp.output_channels)
-        for c in candidates:    # a misspelt channel: the file, the candidate, the outputs
-            unknown = [ch for ch in c if ch not in names]
-            if unknown:
-                raise IdentError(f"{source}: candidate {loc.location_name(c)}: channel(s) "
-                                 f"{', '.join(unknown)} not among the outputs "
-                                 f"({', '.join(names)})")
+        # a misspelt channel: named with the file (locate_input checks again, without it)
+        loc.check_candidate_channels(candidates, list(cfg.outputs or inp.output_channels),
+                                     source)
     for name, value in (("refine", refine), ("knots", knots)):
         if value is not None and int(value) < 0:
             raise IdentError(f"{name} {value} is negative (fix: 0 or more)")

@@ -186,11 +186,11 @@ class Identification:
             curves = spline_curves(basis, self.coefficient_spectra, values, self.data.motion)
             verdicts = {nl.name: [c.get("verdict") for c in summaries
                                   if c["name"] in nl.coefficient_names] for nl in basis}
+            length_unit = str(self.units.get("length") or "") if curves else ""
             for c in curves:
                 determined = any(v != NOT_IDENTIFIABLE for v in verdicts[c.element])
                 c.suggestion = determined_suggestion(
-                    c, determined, self._located_jenkins(c.element),
-                    length_unit=str(self.units.get("length") or ""))
+                    c, determined, self._located_jenkins(c.element), length_unit=length_unit)
             self._cache["spline_curves"] = curves
         return list(self._cache["spline_curves"])
 

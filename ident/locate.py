@@ -148,6 +148,18 @@ def candidate_list(items: Any, source: str = "candidates") -> list[dict]:
     return out
 
 
+def check_candidate_channels(candidates: Sequence[Mapping[str, float]], names: Sequence[str],
+                             source: str | None = None) -> None:
+    """Refuse a candidate naming a channel that is not an output: one line naming the
+    ``source`` (a candidates file), the candidate, the channel and the outputs."""
+    for c in candidates:
+        unknown = [ch for ch in c if ch not in names]
+        if unknown:
+            raise IdentError(f"{source + ': ' if source else ''}candidate {location_name(c)}: "
+                             f"channel(s) {', '.join(unknown)} not among the outputs "
+                             f"({', '.join(names)})")
+
+
 def generic_columns(x: np.ndarray, v: np.ndarray | None) -> np.ndarray:
     """The generic restoring-force columns of one location (:data:`GENERIC_COLUMNS`).
 
@@ -661,11 +673,7 @@ def locate_input(inp, cfg, *, candidates: Any = "all", order: int | None = None,
         cands = candidate_list(list(candidates))
     if not cands:
         raise IdentError("no candidate location (give at least one channel)")
-    for c in cands:
-        unknown = [ch for ch in c if ch not in names]
-        if unknown:
-            raise IdentError(f"candidate {location_name(c)}: channel(s) {', '.join(unknown)} "
-                             f"not among the outputs ({', '.join(names)})")
+    check_candidate_channels(cands, names)
     reader = Nonlinearity(name="locate", kind="quadratic_damping",
                           channels={c: 1.0 for c in sorted({ch for c in cands for ch in c})})
     session = prepare_session(inp, lin_cfg, motion_for=(reader,))

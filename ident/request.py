@@ -195,13 +195,11 @@ def _drive_lines(inp: IdentInput) -> np.ndarray:
     """The excited lines found in the drive's spectrum (periods after the transient ones);
     empty when no multisine is found (a random or swept force)."""
     from fnsi_lab.ident.core.excitation import detect_excited_lines
+    from fnsi_lab.ident.core.io import steady_drive_power
 
-    u = np.asarray(inp.u, float)                     # (R, P, N, m)
-    skip = int(inp.transient_periods or 0)
-    if u.ndim != 4 or u.shape[2] < 4:
+    if np.ndim(inp.u) != 4 or np.shape(inp.u)[2] < 4:
         return np.zeros(0)
-    steady = u[:, skip:] if u.shape[1] > skip else u
-    power = np.mean(np.abs(np.fft.rfft(steady, axis=2)) ** 2, axis=(0, 1))   # (N/2+1, m)
+    power = steady_drive_power(inp)
     try:
         return np.asarray(detect_excited_lines(power, inp.sample_rate_hz,
                                                inp.samples_per_period).lines)

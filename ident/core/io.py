@@ -276,6 +276,15 @@ def _common_units(records: Sequence[IdentInput], names: Sequence[str]) -> dict[s
     return units
 
 
+def steady_drive_power(rec: IdentInput) -> np.ndarray:
+    """``|U(k)|^2`` of the drive per line, averaged over the realisations and the periods
+    after the transient ones (all of them when none is left), shape ``(N // 2 + 1, m)``."""
+    u = np.asarray(rec.u, float)                     # (R, P, N, m)
+    skip = int(rec.transient_periods or 0)
+    steady = u[:, skip:] if u.shape[1] > skip else u
+    return np.mean(np.abs(np.fft.rfft(steady, axis=2)) ** 2, axis=(0, 1))
+
+
 def _same_grid(rec: IdentInput, grid: np.ndarray | None) -> bool:
     """Whether ``rec`` excites the lines ``grid`` (another record's declared grid): its own
     declared lines equal them, or, undeclared, its drive carries power on all but 2 % of
@@ -285,10 +294,7 @@ def _same_grid(rec: IdentInput, grid: np.ndarray | None) -> bool:
         return True
     if rec.excited_lines is not None:
         return bool(np.array_equal(np.asarray(rec.excited_lines), grid))
-    u = np.asarray(rec.u, float)
-    skip = int(rec.transient_periods or 0)
-    steady = u[:, skip:] if u.shape[1] > skip else u
-    power = np.mean(np.abs(np.fft.rfft(steady, axis=2)) ** 2, axis=(0, 1)).sum(axis=-1)
+    power = steady_drive_power(rec).sum(axis=-1)
     if grid.max() >= power.size:
         return False
     on = power[grid]
