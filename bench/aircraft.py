@@ -94,8 +94,13 @@ IDENT_LINEAR = _config("""\
 
 
 def write_campaign(out: Path, levels: list[float], *, same_phases: bool = False,
-                   force: bool = False) -> list[dict]:
-    """Record every level into ``out`` and write the ident configs; returns levels.json."""
+                   force: bool = False, phase_seed: int = 0) -> list[dict]:
+    """Record every level into ``out`` and write the ident configs; returns levels.json.
+
+    Level ``i`` is driven by the multisine realisation ``phase_seed + i`` (with
+    ``same_phases``: the experiment's own seed + ``phase_seed`` at every level), so another
+    ``phase_seed`` gives the same campaign with other realisations.
+    """
     from fnsi_lab import acquire
     from fnsi_lab.daq.config import load_experiment
     from fnsi_lab.daq.recording.info import recording_info
@@ -105,7 +110,7 @@ def write_campaign(out: Path, levels: list[float], *, same_phases: bool = False,
     rows = []
     for i, level in enumerate(levels):
         exc = replace(base.excitation, rms=float(level), levels=(),
-                      seed=base.excitation.seed if same_phases else i)
+                      seed=(base.excitation.seed if same_phases else i) + phase_seed)
         path = out / f"aircraft-rms{level:g}.mcap"
         cfg = replace(base, excitation=exc, output=str(path))
         print(f"level {i + 1}/{len(levels)}: {level:g} N RMS -> {path}", file=sys.stderr)
@@ -136,9 +141,12 @@ def main(argv: list[str] | None = None) -> int:
                     metavar="N_RMS", help="measured force levels (default 12 26 40 55 69 84 98)")
     ap.add_argument("--same-phases", action="store_true",
                     help="one multisine realisation for every level (default: one per level)")
+    ap.add_argument("--phase-seed", type=int, default=0,
+                    help="first multisine realisation (level i uses PHASE_SEED + i; default 0)")
     ap.add_argument("--force", action="store_true", help="replace existing recordings")
     args = ap.parse_args(argv)
-    rows = write_campaign(args.out, args.levels, same_phases=args.same_phases, force=args.force)
+    rows = write_campaign(args.out, args.levels, same_phases=args.same_phases, force=args.force,
+                          phase_seed=args.phase_seed)
     for r in rows:
         diff = r.get("period_difference_last", {})
         print(f"{r['file']:24s} force {r.get('force_rms_n', float('nan')):6.2f} N RMS  "

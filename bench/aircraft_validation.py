@@ -76,8 +76,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--together", type=float, nargs="+", default=None, metavar="LEVEL",
                     help="identify these levels together (one model; docs/ident.md, 'Several "
                          "records at once') and validate it on every other level")
+    ap.add_argument("--phase-seed", type=int, default=0,
+                    help="the campaign's first multisine realisation (bench/aircraft.py; "
+                         "another value: the same campaign with other realisations)")
     args = ap.parse_args(argv)
-    rows = write_campaign(args.work, args.levels, force=True)
+    rows = write_campaign(args.work, args.levels, force=True, phase_seed=args.phase_seed)
     if args.together:
         return _together(args, rows)
     model = aircraft_model()

@@ -251,7 +251,7 @@ def _print_auto_summary(res: Any, out=None, warnings: list | tuple = (),
     linear = (doc.get("nonlinear_vs_linear") or {}).get("decision") == "linear"
     final = {c["name"]: c for c in doc.get("coefficients") or []}
     which = f"the {answer} model at order {res.final_model.order}" + (
-        " (the reduction did not make the coefficients more consistent)"
+        f" ({res.final_reason or 'the reduction did not make the coefficients more consistent'})"
         if res.reduced is not None and answer == "full" else "")
     if linear:
         kept = f"its nonlinear model: {which}" if doc.get("coefficients") else \

@@ -30,27 +30,30 @@ def compare_with_linear(session: IdentSession, model: StateSpaceModel, modes: Se
                         verdicts: Sequence[str], *, order: int | None, sweep: Sequence[int],
                         reduce_at: int | None, max_order: int | None,
                         block_rows: int | None,
-                        validation: IdentInput | None = None) -> NestedTest | None:
+                        validation: IdentInput | None = None,
+                        linear: Identification | None = None) -> NestedTest | None:
     """The linear fit of the same data (same orders, weighting, ``D`` choice, basis removed)
     and the nested test of the answer (``model``, its physical ``modes`` and coefficient
     ``verdicts``) against it (:mod:`ident.robust.nested`); None when the linear fit fails (its
     reason goes to the warnings). When the F-test supports the nonlinear terms, both models
     are simulated on the record, or on ``validation`` when given
-    (:func:`simulated_against_linear`)."""
+    (:func:`simulated_against_linear`). ``linear``: that linear fit, already made (a second
+    model tested against it)."""
     from fnsi_lab.ident.robust.nested import nested_test
 
-    cfg = replace(session.config, nonlinearities=())
-    linear_session = replace(session, config=cfg, data=with_basis(session.data, ()),
-                             timings_s={}, warnings=[], evidence={}, cache={},
-                             parameter_search=None)
-    try:
-        linear_fit = fit_session(linear_session, order=order, sweep=sweep,
-                                 reduce_at=reduce_at, max_order=max_order,
-                                 block_rows=None if block_rows is None else block_rows)
-    except (IdentError, ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
-        session.warnings.append(f"no linear fit to compare the nonlinear terms with ({exc})")
-        return None
-    linear = Identification(linear_session, *linear_fit)
+    if linear is None:
+        cfg = replace(session.config, nonlinearities=())
+        linear_session = replace(session, config=cfg, data=with_basis(session.data, ()),
+                                 timings_s={}, warnings=[], evidence={}, cache={},
+                                 parameter_search=None)
+        try:
+            linear_fit = fit_session(linear_session, order=order, sweep=sweep,
+                                     reduce_at=reduce_at, max_order=max_order,
+                                     block_rows=None if block_rows is None else block_rows)
+        except (IdentError, ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
+            session.warnings.append(f"no linear fit to compare the nonlinear terms with ({exc})")
+            return None
+        linear = Identification(linear_session, *linear_fit)
     halves = split_periods(session)
     if halves is not None:   # the basis read on other periods than the outputs it explains
         data_nl, data_lin, how = (*halves, "basis columns from the odd periods, outputs and "

@@ -100,11 +100,13 @@ def test_config_and_element():
     assert nl.hysteretic and nl.coefficient_names == ("joint",)
 
 
-def _campaign(folder: Path, *levels: str) -> Path:
+def _campaign(folder: Path, *levels: str, phase_seed: int = 0) -> Path:
     """The aircraft-like GVT at these levels (N RMS), written by bench/aircraft.py (the real
-    acquisition entry point) with its configs into ``folder/gvt``."""
+    acquisition entry point) with its configs into ``folder/gvt``; level ``i`` driven by the
+    multisine realisation ``phase_seed + i``."""
     proc = subprocess.run([sys.executable, str(ROOT / "bench" / "aircraft.py"), "--out", "gvt",
-                           "--levels", *levels], cwd=folder, capture_output=True, text=True,
+                           "--levels", *levels, "--phase-seed", str(phase_seed)],
+                          cwd=folder, capture_output=True, text=True,
                           timeout=600, env=dict(os.environ, OPENBLAS_NUM_THREADS="1"))
     assert proc.returncode == 0, proc.stderr
     return folder / "gvt"
@@ -443,9 +445,10 @@ def test_friction_and_clearance_from_the_data(tmp_path):
     0.345 mm (+1.1 %; another realisation -0.1 %), the positive side within 30 % of 0.300 mm
     (-20 % on both realisations: that side is the one the settling preload's slip also
     shifts, a part of the joint no element here holds). Simulated on its own record with
-    its own motion, the model has no steady state that Newton reaches from the measured
-    motion (nor did `validate` find one on the next level), so the answer is the linear
-    fit's, and says why."""
+    its own motion, the reduced model has no steady state that Newton reaches from the
+    measured motion; the model it came from (docs/ident.md, "... and on the model before the
+    reduction") has one and predicts every output at least as well as the linear fit, so it
+    is the answer, and says why."""
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
     _campaign(tmp_path, "98")
     proc = subprocess.run([sys.executable, "-m", "fnsi_lab", "ident", "gvt/aircraft-rms98.mcap",
@@ -456,9 +459,36 @@ def test_friction_and_clearance_from_the_data(tmp_path):
     doc = json.loads((tmp_path / "r.json").read_text())
     nvl = doc["nonlinear_vs_linear"]
     assert nvl["p_value"] < 1e-3                       # the F-test alone supports it
-    assert nvl["decision"] == "linear" and nvl["simulation"]["converged"] is False
-    assert "no periodic steady state" in nvl["statement"]
+    assert nvl["decision"] == "nonlinear" and nvl["simulation"]["converged"] is True
+    assert nvl["simulation"]["worse"] == []
+    assert doc["final"] == "full" and "did not pass the nested test" in doc["final_reason"]
+    assert "no periodic steady state" in doc["reduced"]["nonlinear_vs_linear"]
     joint, gap = doc["nonlinearities"]
     assert 38.4e-6 / 1.5 < joint["slip"] < 38.4e-6 * 1.5, joint["slip"]
     g_neg, g_pos = gap["clearances"]
     assert g_neg == pytest.approx(0.345e-3, rel=0.10) and g_pos == pytest.approx(0.300e-3, rel=0.30)
+
+
+def test_the_model_before_the_reduction_when_the_reduced_one_fails(tmp_path):
+    """The GVT joint at 40 N with another multisine realisation (bench/RESULTS.md, "The model
+    before the reduction"): the reduction from the selected order to its physical poles
+    leaves a model that explains the record worse than the linear fit, so the nested test
+    rejects it; the model it came from passes the same test (checked on the 55 N record)
+    and is the answer. Validated on the 69 N record, which no decision read, it predicts
+    every output better than the linear fit (measured 8.8-12.8 dB; asserted 3 dB, the
+    issue's goal: a realisation or a BLAS kernel moves these by a few dB)."""
+    import fnsi_lab
+
+    gvt = _campaign(tmp_path, "40", "55", "69", phase_seed=12)
+    res = fnsi_lab.identify(str(gvt / "aircraft-rms40.mcap"),
+                            config=str(gvt / "aircraft-jenkins.yaml"),
+                            validation=str(gvt / "aircraft-rms55.mcap"))
+    doc = res.to_json()
+    assert doc["final"] == "full" and doc["order"] > doc["reduced"]["order"]
+    assert "not supported" in doc["reduced"]["nonlinear_vs_linear"]
+    nvl = doc["nonlinear_vs_linear"]
+    assert nvl["decision"] == "nonlinear" and nvl["simulation"]["worse"] == []
+    assert doc["coefficients"][0]["verdict"] != "not identifiable"
+    val = fnsi_lab.validate_model(res, gvt / "aircraft-rms69.mcap").to_json()
+    for out in val["outputs"]:
+        assert out["error_db"] < out["linear_fit_error_db"] - 3.0, out

@@ -32,8 +32,13 @@ class AutoResult:
         ``'consistent'`` or ``'ic'``: how ``selected_order`` was chosen.
     final : {'reduced', 'full'}
         Which model is the answer (:attr:`final_model`): the reduced one, unless the
-        reduction raised the coefficient spread of the model it came from (then the full
-        model at ``mdi_order``).
+        reduction raised the coefficient spread of the model it came from, or the nonlinear
+        terms were not supported against the linear fit in the reduced model but were in
+        the one it came from (then the full model at ``mdi_order``; ``final_reason``).
+    final_reason : str or None
+        Why the answer is the full model although a reduced one exists, when not the spread.
+    reduced_statement : str or None
+        The nested test's statement on the reduced model, when it was set aside for that.
     final_spread : dict
         ``{'full': rho, 'reduced': rho}`` behind that choice (NaN when not computed).
     answer_block_rows : int or None
@@ -105,6 +110,8 @@ class AutoResult:
     final_spread: dict = field(default_factory=dict)
     plausible_out_of_band: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     answer_block_rows: int | None = None
+    final_reason: str | None = None
+    reduced_statement: str | None = None
 
     @property
     def final_model(self):
@@ -153,7 +160,8 @@ class AutoResult:
         red = None
         if self.reduced is not None:
             red = {"order": int(self.reduced.order), "poles": poles_of(self.reduced),
-                   "coefficients": self.coefficients.get("reduced")}
+                   "coefficients": self.coefficients.get("reduced"),
+                   "nonlinear_vs_linear": self.reduced_statement}
         final = self.final_model
         md = self.modal_dominancy
         final_poles = poles_of(final)
@@ -169,6 +177,7 @@ class AutoResult:
         return {
             "order": int(final.order),
             "final": self.final,
+            "final_reason": self.final_reason,
             "modes": modes,
             "poles": final_poles,
             "coefficients": self.coefficients.get(self.final if self.final == "reduced" else "full"),
