@@ -20,6 +20,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from fnsi_lab import plain
 from fnsi_lab.ident.errors import IdentDataError, IdentError
 
 __all__ = ["validate_model", "ValidationResult", "figure_validation"]
@@ -223,24 +224,24 @@ def validate_model(result: Any, record: Any, *, method: str = "auto",
     decided_linear = bool(basis) and nested.get("decision") == "linear"
     linear_answer = False
     if basis and model.b_d.shape[1] == model.n_inputs:   # no basis columns: a linear answer
-        notes.append(f"the answer is a linear model (its nonlinear terms {names} were not "
+        notes.append(f"the answer is a linear model (its nonlinear terms {plain.names(names, quote=True)} were not "
                      "kept): the nonlinear model's error is the linear model's")
         linear_answer = True
     elif decided_linear and fit is not None and simulate == "answer":
         # ident kept the linear fit (F-test, simulation check, parameter search...): say why
-        notes.append(f"the nonlinear terms {names} were not kept ({_rejection(nested)}): the "
+        notes.append(f"the nonlinear terms {plain.names(names, quote=True)} were not kept ({_rejection(nested)}): the "
                      "answer is the linear fit, whose error every column gives (--model "
                      "nonlinear simulates the nonlinear model anyway)")
         model, linear_answer = fit, True
     elif decided_linear:
-        notes.append(f"the nonlinear terms {names} were not kept ({_rejection(nested)}); the "
+        notes.append(f"the nonlinear terms {plain.names(names, quote=True)} were not kept ({_rejection(nested)}); the "
                      "nonlinear model is simulated all the same")
     if linear_answer:
         basis = ()
     if len(model.input_names) != model.n_inputs + sum(len(nl.coefficient_names) for nl in basis):
         raise IdentError(f"{res_name}: the model has {len(model.input_names)} extended inputs "
                          f"but {model.n_inputs} force(s) and the basis "
-                         f"{[nl.name for nl in basis]} need a different number")
+                         f"({plain.names([nl.name for nl in basis], quote=True)}) need a different number")
     outputs = list(res.get("outputs") or model.output_names)
     inputs = list(res.get("inputs") or [])
     quantity = str(res.get("output_quantity") or "displacement")
@@ -259,8 +260,8 @@ def validate_model(result: Any, record: Any, *, method: str = "auto",
     except IdentError as exc:
         text = str(exc)   # it may name the file already: name it once
         where = "" if text.startswith(rec_name) else f"{rec_name}: "
-        raise type(exc)(f"{where}{text} (the model was identified on outputs {outputs} "
-                        f"and inputs {inputs})") from None
+        raise type(exc)(f"{where}{text} (the model was identified on outputs {plain.names(outputs)} "
+                        f"and inputs {plain.names(inputs)})") from None
     if abs(inp.sample_rate_hz - model.sample_rate_hz) > 1e-9 * model.sample_rate_hz:
         raise IdentDataError(f"{rec_name}: sampled at {inp.sample_rate_hz:g} Hz but the model at "
                              f"{model.sample_rate_hz:g} Hz (fix: validate on a record of the "

@@ -21,6 +21,7 @@ from typing import Any, Iterable, Mapping, Sequence, TypeVar, overload
 
 import yaml
 
+from fnsi_lab import plain
 from fnsi_lab.errors import ConfigError
 
 _MISSING = object()
@@ -111,11 +112,11 @@ class Section:
         if value is None:
             return value
         if not isinstance(value, str):
-            raise self.error(key, f"expected text, got {value!r}")
+            raise self.error(key, f"expected text, got {plain.value(value)}")
         if choices is not None and value not in choices:
             close = difflib.get_close_matches(value, choices, n=1)
             hint = f"did you mean {close[0]!r}? " if close else ""
-            raise self.error(key, f"{value!r} is not allowed", fix=f"{hint}use one of {list(choices)}")
+            raise self.error(key, f"{value!r} is not allowed", fix=f"{hint}use one of {plain.names(choices)}")
         return value
 
     @overload
@@ -135,7 +136,7 @@ class Section:
         """A true/false value."""
         value = self.raw(key, default)
         if not isinstance(value, bool):
-            raise self.error(key, f"expected true or false, got {value!r}")
+            raise self.error(key, f"expected true or false, got {plain.value(value)}")
         return value
 
     def number(self, key: str, default: Any = _MISSING, *, positive: bool = False,
@@ -146,7 +147,7 @@ class Section:
         if value is None:
             return value
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise self.error(key, f"expected a number, got {value!r}")
+            raise self.error(key, f"expected a number, got {plain.value(value)}")
         value = float(value)
         if positive and not value > 0:
             raise self.error(key, f"must be > 0, got {value:g}")
@@ -168,7 +169,7 @@ class Section:
             if isinstance(value, float) and value.is_integer():
                 value = int(value)
             else:
-                raise self.error(key, f"expected a whole number, got {value!r}")
+                raise self.error(key, f"expected a whole number, got {plain.value(value)}")
         if minimum is not None and value < minimum:
             raise self.error(key, f"must be >= {minimum}, got {value}")
         if maximum is not None and value > maximum:
@@ -182,7 +183,7 @@ class Section:
             return value
         if not isinstance(value, (list, tuple)) or not all(
                 isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
-            raise self.error(key, f"expected a list of numbers, got {value!r}")
+            raise self.error(key, f"expected a list of numbers, got {plain.value(value)}")
         if length is not None and len(value) != length:
             raise self.error(key, f"expected {length} numbers, got {len(value)}")
         return tuple(float(v) for v in value)
@@ -202,5 +203,5 @@ class Section:
         if unknown:
             key = str(unknown[0])
             close = difflib.get_close_matches(key, sorted(allowed), n=1)
-            fix = f"did you mean {close[0]!r}?" if close else f"remove it; known keys: {sorted(allowed)}"
+            fix = f"did you mean {close[0]!r}?" if close else f"remove it; known keys: {plain.names(sorted(allowed))}"
             raise self.error(key, "unknown key", fix=fix)

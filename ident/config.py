@@ -45,6 +45,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
+from fnsi_lab import plain
 from fnsi_lab.errors import ConfigError
 from fnsi_lab.validate import Section, load_yaml
 from fnsi_lab.ident.core.basis import KINDS, Nonlinearity, ParameterSpace
@@ -159,13 +160,13 @@ def _clearance_spec(sec: Section, key: str, v: Any, parameter: str) -> tuple[flo
         return 0.0, ParameterSpace(parameter)
     if isinstance(v, list) and len(v) == 2 and all(_is_number(x) for x in v):
         if not 0 <= v[0] < v[1]:
-            raise sec.error(key, f"search interval {v} must be [low, high] with 0 <= low < high",
+            raise sec.error(key, f"search interval {plain.value(v)} must be [low, high] with 0 <= low < high",
                             fix="e.g. [1.0, 2.0] (same length unit as the outputs)")
         return 0.0, ParameterSpace(parameter, interval=(float(v[0]), float(v[1])))
     if _is_number(v) and v >= 0:
         return float(v), None
     raise sec.error(key, f"expected a non-negative distance, auto or a search interval "
-                    f"[low, high], got {v!r}", fix="e.g. 1.3, auto or [1.0, 2.0]")
+                    f"[low, high], got {plain.value(v)}", fix="e.g. 1.3, auto or [1.0, 2.0]")
 
 
 def _offset_spec(sec: Section, kind: str) -> tuple[float, ParameterSpace | None]:
@@ -175,7 +176,7 @@ def _offset_spec(sec: Section, kind: str) -> tuple[float, ParameterSpace | None]
     if v == "auto" or isinstance(v, list):
         if kind != "trilinear":
             raise sec.error("offset", f"only a trilinear stop's offset can be left to the data, "
-                            f"got {v!r} for a {kind} element",
+                            f"got {plain.value(v)} for a {kind} element",
                             fix=("leave the clearance to the data instead (a one-sided stop's "
                                  "offset and clearance are one parameter)" if kind == "bilinear"
                                  else "give the offset as a number"))
@@ -183,7 +184,7 @@ def _offset_spec(sec: Section, kind: str) -> tuple[float, ParameterSpace | None]
             return 0.0, ParameterSpace("offset")
         if len(v) == 2 and all(_is_number(x) for x in v) and v[0] < v[1]:
             return 0.0, ParameterSpace("offset", interval=(float(v[0]), float(v[1])))
-        raise sec.error("offset", f"search interval {v!r} must be [low, high] with low < high",
+        raise sec.error("offset", f"search interval {plain.value(v)} must be [low, high] with low < high",
                         fix="e.g. [-0.5, 0.5] (same length unit as the outputs)")
     return sec.number("offset", 0.0), None
 
@@ -193,11 +194,11 @@ def _nonlinearity(sec: Section, index: int) -> Nonlinearity:
     kind = sec.string("kind", choices=KINDS)
     chs = sec.raw("channels")
     if not isinstance(chs, dict) or not chs:
-        raise sec.error("channels", f"expected a mapping channel: weight, got {chs!r}",
+        raise sec.error("channels", f"expected a mapping channel: weight, got {plain.value(chs)}",
                         fix="e.g. channels: {NC2W-Z: 1, NC2B-Z: -1}")
     for ch, w in chs.items():
         if isinstance(w, bool) or not isinstance(w, (int, float)) or w == 0:
-            raise sec.error("channels", f"weight of {ch!r} must be a non-zero number, got {w!r}")
+            raise sec.error("channels", f"weight of {ch!r} must be a non-zero number, got {plain.value(w)}")
     kw: dict[str, Any] = {"name": name, "kind": kind, "channels": {str(k): float(v) for k, v in chs.items()}}
     unknown: list[ParameterSpace] = []
     if kind == "polynomial":
@@ -208,9 +209,9 @@ def _nonlinearity(sec: Section, index: int) -> Nonlinearity:
             cands = raw if isinstance(raw, list) else None
             if cands is not None and (len(cands) < 2 or not all(_is_number(v) and v > 0 for v in cands)):
                 raise sec.error("exponent", f"expected a list of >= 2 positive exponents to "
-                                f"choose from, got {raw!r}", fix="e.g. exponent: [2, 3, 5] or auto")
+                                f"choose from, got {plain.value(raw)}", fix="e.g. exponent: [2, 3, 5] or auto")
             if cands is not None and not kw["signed"] and not all(float(v).is_integer() for v in cands):
-                raise sec.error("exponent", f"candidates {raw} are not all whole",
+                raise sec.error("exponent", f"candidates {plain.value(raw)} are not all whole",
                                 fix="use signed: true for |x|**(p-1) x with real exponents")
             unknown.append(ParameterSpace("exponent", candidates=None if cands is None
                                           else tuple(float(v) for v in cands)))
@@ -224,7 +225,7 @@ def _nonlinearity(sec: Section, index: int) -> Nonlinearity:
         sides = [raw, raw] if raw == "auto" else raw
         if not isinstance(sides, list) or len(sides) != 2:
             raise sec.error("clearances", f"expected 2 numbers [g_neg, g_pos] (each a distance, auto or "
-                            f"[low, high]) or auto, got {raw!r}",
+                            f"[low, high]) or auto, got {plain.value(raw)}",
                             fix="e.g. clearances: [1.5, 1.3], auto, or [[1.0, 2.0], auto]")
         g = []
         for par, v in zip(("g_neg", "g_pos"), sides):
@@ -248,7 +249,7 @@ def _nonlinearity(sec: Section, index: int) -> Nonlinearity:
                             "(same length unit as the outputs)")
         value, space = _clearance_spec(sec, "slip", sec.raw("slip"), "slip")
         if space is None and not value > 0:
-            raise sec.error("slip", f"expected a positive distance, got {value!r}",
+            raise sec.error("slip", f"expected a positive distance, got {plain.value(value)}",
                             fix="e.g. slip: auto or slip: 5.0e-5")
         kw["slip"] = value
         if space is not None:
@@ -265,7 +266,7 @@ def _nonlinearity(sec: Section, index: int) -> Nonlinearity:
                 kw[key] = tuple(float(v) for v in raw)
             else:
                 raise sec.error(key, f"expected a knot count (e.g. 12) or a list of distinct "
-                                f"positions, got {raw!r}",
+                                f"positions, got {plain.value(raw)}",
                                 fix="e.g. knots: 12 (spread over the measured range) or "
                                 "knots: [-1.5, -0.5, 0.5, 1.5] (output length unit)")
         if "knot_count" not in kw and "knots" not in kw:
@@ -286,7 +287,7 @@ def _nonlinearity(sec: Section, index: int) -> Nonlinearity:
         t = [t] if isinstance(t, (int, float)) and not isinstance(t, bool) else t
         if not isinstance(t, list) or len(t) != n_coef or not all(
                 isinstance(v, (int, float)) and not isinstance(v, bool) for v in t):
-            raise sec.error("truth", f"expected {n_coef} number(s), got {t!r}")
+            raise sec.error("truth", f"expected {n_coef} number(s), got {plain.value(t)}")
         kw["truth"] = tuple(float(v) for v in t)
     sec.finish()
     try:
@@ -320,7 +321,7 @@ def _compare_linear(sec) -> bool | str:
     """``compare_linear``: true, false or auto (the default)."""
     value = sec.raw("compare_linear", "auto")
     if value not in (True, False, "auto"):
-        raise sec.error("compare_linear", f"{value!r} is not allowed", fix="use true, false or auto")
+        raise sec.error("compare_linear", f"{plain.value(value)} is not allowed", fix="use true, false or auto")
     return value
 
 
@@ -337,7 +338,7 @@ def parse_ident_config(data: Any, *, file: str | None = None) -> IdentConfig:
         band_lo, band_hi = sec.numbers("band_hz", length=2)
         band = (band_lo, band_hi)
         if not 0 <= band[0] < band[1]:
-            raise sec.error("band_hz", f"need 0 <= f_min < f_max, got {list(band)}")
+            raise sec.error("band_hz", f"need 0 <= f_min < f_max, got f_min {plain.number(band[0])}, f_max {plain.number(band[1])} Hz")
         nls = []
         names = set()
         auto_nl = sec.raw("nonlinearities", None) == "auto"
@@ -355,7 +356,7 @@ def parse_ident_config(data: Any, *, file: str | None = None) -> IdentConfig:
         outputs = sec.raw("outputs", None)
         if outputs is not None:
             if not isinstance(outputs, list) or not all(isinstance(o, str) for o in outputs):
-                raise sec.error("outputs", f"expected a list of channel names, got {outputs!r}")
+                raise sec.error("outputs", f"expected a list of channel names, got {plain.value(outputs)}")
             if len(set(outputs)) != len(outputs):
                 raise sec.error("outputs", "duplicate channel names")
             outputs = tuple(outputs)
@@ -410,5 +411,5 @@ def packaged_config(name: str) -> Path:
     p = Path(__file__).parent / "data" / (name if name.endswith(".yaml") else name + ".yaml")
     if not p.exists():
         avail = sorted(q.stem for q in p.parent.glob("*.yaml"))
-        raise IdentConfigError(f"no packaged ident config {name!r}", fix=f"use one of {avail}")
+        raise IdentConfigError(f"no packaged ident config {name!r}", fix=f"use one of {plain.names(avail)}")
     return p

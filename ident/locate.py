@@ -50,6 +50,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
+from fnsi_lab import plain
 from fnsi_lab.ident.core.parallel import parallel_map
 from fnsi_lab.ident.errors import IdentError
 from fnsi_lab.ident.location_result import (P_SIGNIFICANT, Localisation, LocationScore,
@@ -94,7 +95,7 @@ def candidate_locations(output_names: Sequence[str], kind: str = "all") -> list[
     list of dict str -> float
     """
     if kind not in ("all", "channels", "pairs"):
-        raise IdentError(f"candidates {kind!r} is not one of ['all', 'channels', 'pairs'] or a file")
+        raise IdentError(f"candidates {kind!r} is not one of all, channels, pairs or a file")
     names = list(output_names)
     out: list[dict] = []
     if kind in ("all", "channels"):
@@ -358,7 +359,7 @@ def rank_locations(data, model, candidates: Sequence[Mapping[str, float]], *,
         for ch, wgt in cand.items():
             if ch not in chans:
                 raise IdentError(f"candidate {location_name(cand)}: channel {ch!r} is not among "
-                                 f"the outputs {chans}")
+                                 f"the outputs ({plain.names(chans)})")
             L[chans.index(ch)] = wgt
         vectors.append(L)
     done = itertools.count(1)   # next() is atomic: the threads count without a lock
@@ -679,7 +680,7 @@ def locate_input(inp, cfg, *, candidates: Any = "all", order: int | None = None,
     session = prepare_session(inp, lin_cfg, motion_for=(reader,))
     data = session.data
     if form not in ("auto", "generic", "jenkins"):
-        raise IdentError(f"form {form!r} is not one of ['auto', 'generic', 'jenkins']")
+        raise IdentError(f"form {form!r} is not one of auto, generic, jenkins")
     notes: list[str] = []
     if form == "jenkins" or form == "auto" and len(cands) <= AUTO_STICK_SLIP_CANDIDATES:
         from fnsi_lab.ident.locate_stick_slip import rank_stick_slip

@@ -16,6 +16,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from fnsi_lab import plain
 from fnsi_lab.ident.core.basis import Nonlinearity
 from fnsi_lab.ident.config import IdentConfig
 from fnsi_lab.ident.errors import IdentError
@@ -41,10 +42,10 @@ def check_order(value: Any, name: str = "order") -> int:
                 and float(value).is_integer()):
             value = int(float(value))
         else:
-            raise IdentError(f"{name} must be a positive integer, got {value!r} "
+            raise IdentError(f"{name} must be a positive integer, got {plain.value(value)} "
                              f"(fix: e.g. {name}=10)")
     if int(value) < 1:
-        raise IdentError(f"{name} must be a positive integer, got {value!r} (fix: e.g. {name}=10)")
+        raise IdentError(f"{name} must be a positive integer, got {plain.value(value)} (fix: e.g. {name}=10)")
     return int(value)
 
 

@@ -16,6 +16,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from fnsi_lab import plain
 from fnsi_lab.ident.core.basis import Nonlinearity
 from fnsi_lab.ident.config import IdentConfig
 from fnsi_lab.ident.errors import (IdentError, IdentWarning, NoExcitedLineError,
@@ -99,8 +100,8 @@ def apply_recording_truth(cfg: IdentConfig, truth: Mapping | None) -> tuple[Iden
         if (mine is not None and given and not nl.unknown   # 'auto': estimated, compared later
                 and all(isinstance(m, (int, float)) for m in mine)
                 and not np.allclose(mine, given, rtol=1e-9, atol=0)):
-            notes.append(f"nonlinearity {nl.name!r}: clearances {mine} differ from the "
-                         f"recording's truth {given}")
+            notes.append(f"nonlinearity {nl.name!r}: clearances {plain.names(mine)} differ from "
+                         f"the recording's truth {plain.names(given)}")
         nls.append(nl)
     return replace(cfg, nonlinearities=tuple(nls)), notes
 
@@ -147,7 +148,7 @@ def prepare_session(inp: IdentInput, cfg: IdentConfig, *, search_order: int | No
     nyquist = inp.sample_rate_hz / 2
     if cfg.band_hz[1] > nyquist:  # the band's upper edge included: no line exists there
         where = "starts" if cfg.band_hz[0] >= nyquist else "ends"
-        raise IdentError(f"band_hz {list(cfg.band_hz)} {where} above the Nyquist frequency "
+        raise IdentError(f"band_hz {plain.band_hz(cfg.band_hz)} {where} above the Nyquist frequency "
                          f"{nyquist:g} Hz of the data (fs {inp.sample_rate_hz:g} Hz); "
                          f"lower band_hz to at most {nyquist:g} Hz")
     if cfg.output_quantity and inp.output_quantity and cfg.output_quantity != inp.output_quantity:

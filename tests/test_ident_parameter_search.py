@@ -459,7 +459,7 @@ def test_config_syntax():
 
 @pytest.mark.parametrize("nl, match", [
     ({"clearances": "sometimes"}, r"clearances: expected 2 numbers"),
-    ({"clearances": [[2.0, 1.0], "auto"]}, r"clearances: search interval \[2.0, 1.0\]"),
+    ({"clearances": [[2.0, 1.0], "auto"]}, r"clearances: search interval \[2, 1\]"),
     ({"clearances": [1.0, -1.0]}, r"clearances: expected a non-negative distance"),
     ({"kind": "polynomial", "exponent": [2, 3.5]}, r"exponent: candidates .* not all whole"),
     ({"kind": "polynomial", "exponent": [3]}, r"exponent: expected a list of >= 2"),

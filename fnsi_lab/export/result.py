@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from fnsi_lab import plain
 from fnsi_lab.errors import ConfigError, DataFileError
 
 #: FRF kinds of the ``frf`` section, in export order.
@@ -164,16 +165,16 @@ def result_from_dict(res: dict, path: str = "<result>") -> ResultArrays:
         fin = tuple(str(i) for i in section.get("inputs") or inputs)
         fout = tuple(str(o) for o in section.get("outputs") or outputs)
         if fout != outputs:
-            raise ResultFileError(f"{path}: frf.outputs {list(fout)} differ from outputs "
-                                  f"{list(outputs)}")
+            raise ResultFileError(f"{path}: frf.outputs ({plain.names(fout)}) differ from outputs "
+                                  f"({plain.names(outputs)})")
         inputs = inputs or fin
         for kind in FRF_KINDS:
             if section.get(kind) is None:
                 continue
             h = complex_array(section[kind], path=path, field_name=f"frf.{kind}")
             if h.shape != (frf_f.size, p, len(fin)):
-                raise ResultFileError(f"{path}: frf.{kind} has shape {h.shape}, expected "
-                                      f"(lines, outputs, inputs) = {(frf_f.size, p, len(fin))}")
+                raise ResultFileError(f"{path}: frf.{kind} has shape {' x '.join(map(str, h.shape))}, expected "
+                                      f"{frf_f.size} lines x {p} outputs x {len(fin)} inputs")
             frf[kind] = h
     spectra: dict[str, np.ndarray] = {}
     sp_f = sp_exc = None

@@ -189,7 +189,7 @@ def output_noise(Yq_all: np.ndarray | None, y_avg: np.ndarray, Yf: np.ndarray,
     noise_source = "none"
     if noise_estimate not in ("auto", "periods", "lines", "none"):
         raise IdentError(f"noise_estimate {noise_estimate!r} is not one of "
-                         "['auto', 'periods', 'lines', 'none']")
+                         "auto, periods, lines, none")
     P = n_periods
     if P >= 2 and noise_estimate in ("auto", "periods"):
         if Yq_all is None:   # computed above whenever the periods give the noise

@@ -62,6 +62,7 @@ from typing import Literal, Mapping, Sequence
 
 import numpy as np
 
+from fnsi_lab import plain
 from fnsi_lab.ident.errors import ChannelError, IdentError
 
 Kind = Literal["polynomial", "trilinear", "bilinear", "quadratic_damping", "coulomb", "spline",
@@ -101,12 +102,13 @@ class ParameterSpace:
             signed = self.parameter == "offset"
             if not ((signed or 0 <= lo) and lo < hi):
                 raise IdentError(f"search interval of {self.parameter} must be [low, high] with "
-                                 f"{'' if signed else '0 <= '}low < high, got {list(self.interval)}")
+                                 f"{'' if signed else '0 <= '}low < high, got {plain.value(self.interval)}")
             object.__setattr__(self, "interval", (lo, hi))
         if self.candidates is not None:
             c = tuple(sorted({float(v) for v in self.candidates}))
             if len(c) < 2:
-                raise IdentError(f"{self.parameter}: give at least two candidates, got {c}")
+                raise IdentError(f"{self.parameter}: give at least two candidates, "
+                                 f"got {plain.value(c)}")
             object.__setattr__(self, "candidates", c)
 
 
@@ -170,7 +172,7 @@ class Nonlinearity:
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
             raise IdentError(f"nonlinearity {self.name!r}: unknown kind {self.kind!r} "
-                             f"(use one of {list(KINDS)})")
+                             f"(use one of {plain.names(KINDS)})")
         if not self.channels:
             raise IdentError(f"nonlinearity {self.name!r}: 'channels' is empty")
         object.__setattr__(self, "channels", {str(k): float(v) for k, v in self.channels.items()})
@@ -178,7 +180,7 @@ class Nonlinearity:
             g = tuple(float(v) for v in self.clearances)
             if len(g) != 2 or min(g) < 0:
                 raise IdentError(f"nonlinearity {self.name!r}: clearances must be two "
-                                 f"non-negative distances (g_neg, g_pos), got {self.clearances}")
+                                 f"non-negative distances [g_neg, g_pos], got {plain.value(self.clearances)}")
             object.__setattr__(self, "clearances", g)
         if self.kind == "bilinear" and self.clearance < 0:
             raise IdentError(f"nonlinearity {self.name!r}: clearance must be >= 0")
@@ -200,7 +202,7 @@ class Nonlinearity:
         for sp in self.unknown:
             if sp.parameter not in allowed:
                 raise IdentError(f"nonlinearity {self.name!r}: {sp.parameter!r} cannot be "
-                                 f"estimated for a {self.kind} element (estimable: {list(allowed)})"
+                                 f"estimated for a {self.kind} element (estimable: {plain.names(allowed, empty='nothing')})"
                                  + ("; a one-sided stop's offset and clearance are one "
                                     "parameter: leave the clearance to the data"
                                     if (self.kind, sp.parameter) == ("bilinear", "offset") else ""))
@@ -281,8 +283,8 @@ class Nonlinearity:
         for ch, w in self.channels.items():
             if ch not in names:
                 raise ChannelError(f"nonlinearity {self.name!r}: channel {ch!r} is not among "
-                                   f"the identified outputs {names} (list it under outputs: "
-                                   "in the ident config, or check its name)")
+                                   f"the identified outputs {plain.names(names)} (fix: list it under "
+                                   "outputs: in the ident config, or check its name)")
             vec[names.index(ch)] += w
         return vec
 
@@ -307,7 +309,7 @@ class Nonlinearity:
         """
         if self.unknown:
             raise IdentError(f"nonlinearity {self.name!r}: "
-                             f"{[sp.parameter for sp in self.unknown]} not estimated yet "
+                             f"{plain.names([sp.parameter for sp in self.unknown])} not estimated yet "
                              "(ident.refine.parameter_search resolves 'auto' parameters)")
         if self.kind == "spline" and (len(self.knots) < self.knot_count or
                                       len(self.velocity_knots) < self.velocity_knot_count):

@@ -17,6 +17,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from fnsi_lab import plain
 from fnsi_lab.ident.core.basis import Nonlinearity, coefficient_names
 from fnsi_lab.ident.errors import ChannelError, IdentError, NotIdentifiableError
 from fnsi_lab.ident.core.fnsi import StateSpaceModel, transfer_discrete
@@ -147,13 +148,13 @@ def _resolve_driving_points(driving_point, input_names: Sequence[str],
     pairs = []
     for inp, out in dict(driving_point).items():
         if inp not in input_names:
-            raise ChannelError(f"driving point: unknown input {inp!r} (inputs: {list(input_names)})")
+            raise ChannelError(f"driving point: unknown input {inp!r} (inputs: {plain.names(input_names)})")
         if out is None:
             continue
         if out not in output_names:
             raise NotIdentifiableError(
                 f"driving point {out!r} of input {inp!r} is not a measured output: c_a needs the "
-                f"response at the excited DOF (reciprocity, docs/method.md §2.3); outputs: {list(output_names)}")
+                f"response at the excited DOF (reciprocity, docs/method.md §2.3); outputs: {plain.names(output_names)}")
         pairs.append((list(input_names).index(inp), list(output_names).index(out)))
     if not pairs:
         raise NotIdentifiableError("no force has a measured driving point")

@@ -28,6 +28,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from fnsi_lab import plain
 from fnsi_lab.ident.errors import ChannelError, IdentDataError, IdentError
 from fnsi_lab.ident.core.averaging import as_periodic, cut_realizations
 from fnsi_lab.ident.core.frequency_data import OUTPUT_QUANTITIES, OutputQuantity
@@ -103,9 +104,9 @@ def input_from_arrays(arrays: Mapping[str, Any], path: str = "",
         fs = np.asarray(arrays["fs"], float).reshape(-1)
     except (TypeError, ValueError):
         raise IdentDataError(f"{path}: 'fs' must be one positive number (Hz), got "
-                             f"{np.asarray(arrays['fs'])!r}") from None
+                             f"{plain.value(np.asarray(arrays['fs']).tolist())}") from None
     if fs.size != 1 or not fs[0] > 0:
-        raise IdentDataError(f"{path}: 'fs' must be one positive number, got {arrays['fs']!r}")
+        raise IdentDataError(f"{path}: 'fs' must be one positive number, got {plain.value(np.asarray(arrays['fs']).tolist())}")
     N = samples_per_period
     if "N" in arrays:
         try:
@@ -114,7 +115,7 @@ def input_from_arrays(arrays: Mapping[str, Any], path: str = "",
             n_file = 0
         if n_file < 1:  # not "no N": a wrong value (samples per period)
             raise IdentDataError(f"{path}: 'N' (samples per period) must be an integer >= 1, "
-                                 f"got {np.asarray(arrays['N'])!r}; fix it or drop N")
+                                 f"got {plain.value(np.asarray(arrays['N']).tolist())}; fix it or drop N")
         if N is not None and N != n_file:
             raise IdentDataError(f"{path}: N={n_file} in the file but samples_per_period={N}")
         N = n_file
@@ -155,12 +156,13 @@ def input_from_arrays(arrays: Mapping[str, Any], path: str = "",
         if (exc_lines.size == 0 or not np.all(np.mod(exc_lines, 1) == 0)
                 or exc_lines.min() < 1 or exc_lines.max() >= u4.shape[2] / 2):
             raise IdentDataError(f"{path}: 'excited_lines' must be DFT bins 1 .. N/2-1 of one "
-                                 f"period (N = {u4.shape[2]}), got {exc_lines[:5]}...")
+                                 f"period (N = {u4.shape[2]}), got "
+                                 f"{plain.names(exc_lines.tolist(), limit=5)}")
         exc_lines = exc_lines.astype(int)
     given = arrays.get("quantity")
     q = None if given is None else str(np.asarray(given).squeeze())
     if q is not None and q not in OUTPUT_QUANTITIES:
-        raise IdentDataError(f"{path}: quantity {q!r} is not one of {list(OUTPUT_QUANTITIES)}")
+        raise IdentDataError(f"{path}: quantity {q!r} is not one of {plain.names(OUTPUT_QUANTITIES)}")
     quantity = None if q is None else OUTPUT_QUANTITIES[OUTPUT_QUANTITIES.index(q)]
     return IdentInput(u=u4, y=y4, sample_rate_hz=float(fs[0]), samples_per_period=u4.shape[2],
                       input_channels=_names(arrays.get("input_channels"), u4.shape[3], "u",
@@ -322,6 +324,6 @@ def _pick(x: np.ndarray, names: Sequence[str], wanted: Sequence[str] | None, rol
         return x, tuple(names)
     missing = [w for w in wanted if w not in names]
     if missing:
-        raise ChannelError(f"{path}: {role} channel(s) {missing} not in the file "
-                           f"({role}s: {list(names)})")
+        raise ChannelError(f"{path}: {role} channel(s) {plain.names(missing, quote=True)} not in "
+                           f"the file ({role}s: {plain.names(names)})")
     return x[..., [list(names).index(w) for w in wanted]], tuple(wanted)

@@ -25,6 +25,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from fnsi_lab import plain
 from fnsi_lab.ident.core.basis import Nonlinearity
 from fnsi_lab.ident.errors import IdentError
 from fnsi_lab.ident.core.fnsi import StateSpaceModel, make_model
@@ -64,8 +65,8 @@ def _matrix(d: Mapping[str, Any], key: str, shape: tuple[int | None, int | None]
     if a.ndim == 1 and a.size == 0:
         a = a.reshape(shape[0] or 0, shape[1] or 0)
     if a.ndim != 2 or any(s is not None and s != n for s, n in zip(shape, a.shape)):
-        raise IdentError(f"{where}: state_space.{key} has shape {a.shape}, expected "
-                         f"{tuple('n' if s is None else s for s in shape)}")
+        raise IdentError(f"{where}: state_space.{key} has shape {' x '.join(map(str, a.shape))}, expected "
+                         f"{' x '.join('n' if s is None else str(s) for s in shape)}")
     return a
 
 

@@ -22,6 +22,7 @@ from typing import Any, Literal, Sequence
 
 import numpy as np
 
+from fnsi_lab import plain
 from fnsi_lab.ident.core.averaging import (FULL_COV_MAX_BYTES, as_periodic, cut_realizations,
                                           floor_noise, output_noise, smooth_lines,
                                           steady_state_error)
@@ -194,7 +195,7 @@ def prepare_frequency_data(record: Any = None, *, u: Any = None, y: Any = None,
     if band_hz is None:
         raise IdentError("band_hz is required (processed band [f_min, f_max] in Hz)")
     if output_quantity not in OUTPUT_QUANTITIES:
-        raise IdentError(f"output_quantity {output_quantity!r} is not one of {list(OUTPUT_QUANTITIES)}")
+        raise IdentError(f"output_quantity {output_quantity!r} is not one of {plain.names(OUTPUT_QUANTITIES)}")
     fs = float(sample_rate_hz)
     basis_oversample = int(basis_oversample)
     if basis_oversample < 1:
@@ -322,7 +323,7 @@ def _periodic_arrays(u: Any, y: Any, samples_per_period: int | None,
                          f"the identification (fix: give fewer transient periods, at most "
                          f"{P_tot - 1}, in the config or the import, or record more periods)")
     if steady_periods not in ("auto", "all"):
-        raise IdentError(f"steady_periods {steady_periods!r} is not one of ['auto', 'all']")
+        raise IdentError(f"steady_periods {plain.value(steady_periods)} is not one of auto, all")
     outputs = tuple(output_names) if output_names is not None else tuple(f"y{i}" for i in range(p))
     inputs = tuple(input_names) if input_names is not None else tuple(f"u{i}" for i in range(m))
     if len(outputs) != p:

@@ -13,6 +13,7 @@ from typing import Literal, Sequence
 
 import numpy as np
 
+from fnsi_lab import plain
 from fnsi_lab.ident.core.excitation import ExcitationGrid, best_grid, detect_excited_lines
 from fnsi_lab.ident.core.frequency_data import TimeBase
 from fnsi_lab.ident.core.noise import mains_contaminated_lines, mains_outlier_lines, noise_lines
@@ -45,7 +46,7 @@ def band_lines(band_hz: tuple[float, float], sample_rate_hz: float,
     fs, N = sample_rate_hz, samples_per_period
     f_min, f_max = (float(b) for b in band_hz)
     if not 0 <= f_min < f_max:
-        raise IdentError(f"band_hz must be [f_min, f_max] with 0 <= f_min < f_max, got {band_hz}")
+        raise IdentError(f"band_hz must be [f_min, f_max] with 0 <= f_min < f_max, got {plain.value(band_hz)}")
     k_all = np.arange(N // 2 + 1)
     f_all = k_all * fs / N
     sel = (f_all >= f_min) & (f_all <= f_max) & (k_all > 0)
@@ -53,7 +54,7 @@ def band_lines(band_hz: tuple[float, float], sample_rate_hz: float,
         sel &= k_all < N // 2
     K = k_all[sel]
     if K.size == 0:
-        raise IdentError(f"no DFT line in band {band_hz} Hz (fs={fs:g} Hz, N={N})")
+        raise IdentError(f"no DFT line in band {plain.band_hz(band_hz)} (fs={fs:g} Hz, N={N})")
     return K, f_min, f_max
 
 

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg as sla
 
+from fnsi_lab import plain
 from fnsi_lab.ident.errors import IdentError
 from fnsi_lab.ident.core.frequency_data import FrequencyData
 
@@ -291,7 +292,7 @@ def compute_poles(a_d: np.ndarray, c_d: np.ndarray, sample_rate_hz: float, *,
     mu, phi, _ = _modal_dt if _modal_dt is not None else eigen_decomposition(np.asarray(a_d, float))
     on_axis = np.abs(mu.imag) <= 1e-10 * np.maximum(np.abs(mu), 1e-300)
     if time_base not in TIME_BASES:
-        raise IdentError(f"time_base {time_base!r} is not one of {list(TIME_BASES)}")
+        raise IdentError(f"time_base {time_base!r} is not one of {plain.names(TIME_BASES)}")
     if time_base == "bilinear":  # lambda = (2/T) (mu - 1) / (mu + 1); mu = -1 -> infinity
         if bilinear_period_s is None:
             raise IdentError("time_base 'bilinear' needs bilinear_period_s")
@@ -371,7 +372,7 @@ def make_model(a_d, b_d, c_d, d_d, *, sample_rate_hz: float, n_inputs: int,
         a_c, b_c, c_c, d_c = band_limited_to_continuous(a_d, b_d, c_d, d_d, sample_rate_hz,
                                                         _modal_dt=modal)
     else:
-        raise IdentError(f"time_base {time_base!r} is not one of {list(TIME_BASES)}")
+        raise IdentError(f"time_base {time_base!r} is not one of {plain.names(TIME_BASES)}")
     in_names = tuple(input_names) or tuple(f"e{i}" for i in range(m_e))
     out_names = tuple(output_names) or tuple(f"y{i}" for i in range(p))
     model = StateSpaceModel(order=n, a_d=a_d, b_d=b_d, c_d=c_d, d_d=d_d, a_c=a_c, b_c=b_c,

@@ -27,6 +27,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from fnsi_lab import plain
 from fnsi_lab.progress import Progress
 from fnsi_lab.ident.robust import mdi as mdi_mod
 from fnsi_lab.ident.robust import order_selection as osel
@@ -239,7 +240,7 @@ def _checked_request(options: AutoOptions | dict | None, orders: Sequence[int],
     options = options.validate()
     orders = sorted({int(n) for n in orders})
     if not orders or orders[0] < 1:
-        raise IdentError(f"orders must be positive integers, got {orders!r}")
+        raise IdentError(f"orders must be positive integers, got {plain.value(orders)}")
     sweep = sorted(set(orders) | ({int(reduce_at) + k for k in range(-2, 3)} - {0, -1}
                                    if reduce_at is not None else set()))
     return options, orders, sweep

@@ -31,6 +31,7 @@ from typing import Literal, Sequence
 
 import numpy as np
 
+from fnsi_lab import plain
 from fnsi_lab.ident.errors import IdentError
 
 MdiNorm = Literal["h2", "seed", "h2_single", "hinf", "hinf_band"]
@@ -48,13 +49,13 @@ __all__ = [
 
 def _check_choice(name: str, value: str, allowed: Sequence[str]) -> None:
     if value not in allowed:
-        raise IdentError(f"{name}={value!r} is not one of {', '.join(map(repr, allowed))}")
+        raise IdentError(f"{name}={value!r} is not one of {plain.names(allowed)}")
 
 
 def _band(band: Sequence[float]) -> tuple[float, float]:
     w1, w2 = (float(band[0]), float(band[1]))
     if not (0.0 <= w1 < w2) or not np.isfinite(w2):
-        raise IdentError(f"band must satisfy 0 <= w1 < w2 < inf, got {band!r}")
+        raise IdentError(f"band must satisfy 0 <= w1 < w2 < inf, got {plain.value(band)}")
     return w1, w2
 
 
@@ -366,7 +367,7 @@ def output_weights(Y, scaling: str = "rms", noise_cov=None):
     """
     Y = np.asarray(Y)
     if scaling not in ("rms", "noise", "none"):
-        raise IdentError(f"output_scaling={scaling!r} is not one of 'rms', 'noise', 'none'")
+        raise IdentError(f"output_scaling={scaling!r} is not one of rms, noise, none")
     if scaling == "none":
         return np.ones(Y.shape[1])
     if scaling == "noise" and noise_cov is not None:

@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+from fnsi_lab import plain
 from fnsi_lab.ident.robust import mdi as mdi_mod
 from fnsi_lab.ident.robust import order_selection as osel
 from fnsi_lab.ident.errors import IdentError
@@ -168,32 +169,32 @@ class AutoOptions:
     def validate(self) -> "AutoOptions":
         """Raise :class:`IdentError` naming the bad option and the allowed values."""
         if self.criterion not in osel.CRITERIA:
-            raise IdentError(f"criterion={self.criterion!r} is not one of {osel.CRITERIA}")
+            raise IdentError(f"criterion={self.criterion!r} is not one of {plain.names(osel.CRITERIA)}")
         if self.mdi_norm not in mdi_mod.MDI_NORMS:
-            raise IdentError(f"mdi_norm={self.mdi_norm!r} is not one of {mdi_mod.MDI_NORMS}")
+            raise IdentError(f"mdi_norm={self.mdi_norm!r} is not one of {plain.names(mdi_mod.MDI_NORMS)}")
         if self.output_scaling not in ("rms", "noise", "none"):
             raise IdentError(f"output_scaling={self.output_scaling!r} is not one of "
-                             "('rms', 'noise', 'none')")
+                             "rms, noise, none")
         if self.input_scaling not in mdi_mod.INPUT_SCALINGS:
             raise IdentError(f"input_scaling={self.input_scaling!r} is not one of "
-                             f"{mdi_mod.INPUT_SCALINGS}")
+                             f"{plain.names(mdi_mod.INPUT_SCALINGS)}")
         if isinstance(self.ic_band, str) and self.ic_band not in osel.IC_BANDS:
-            raise IdentError(f"ic_band={self.ic_band!r} is not one of {osel.IC_BANDS} or (f1, f2)")
+            raise IdentError(f"ic_band={self.ic_band!r} is not one of {plain.names(osel.IC_BANDS)} or [f1, f2] in Hz")
         if self.top_n is not None and self.manual_threshold is not None:
             raise IdentError("give top_n or manual_threshold, not both")
         if self.sweep_bd not in ("fast", "weighted"):
-            raise IdentError(f"sweep_bd={self.sweep_bd!r} is not one of ('fast', 'weighted')")
+            raise IdentError(f"sweep_bd={self.sweep_bd!r} is not one of fast, weighted")
         if self.out_of_band not in OUT_OF_BAND:
-            raise IdentError(f"out_of_band={self.out_of_band!r} is not one of {OUT_OF_BAND}")
+            raise IdentError(f"out_of_band={self.out_of_band!r} is not one of {plain.names(OUT_OF_BAND)}")
         if self.fallback not in ("stabilisation", "none"):
-            raise IdentError(f"fallback={self.fallback!r} is not one of ('stabilisation', 'none')")
+            raise IdentError(f"fallback={self.fallback!r} is not one of stabilisation, none")
         if self.order_selection not in ("consistent", "ic"):
             raise IdentError(f"order_selection={self.order_selection!r} is not one of "
-                             "('consistent', 'ic')")
+                             "consistent, ic")
         if not self.detection_sigma >= 0:
             raise IdentError(f"detection_sigma must be >= 0, got {self.detection_sigma}")
         if self.real_poles not in ("keep", "stabilised"):
-            raise IdentError(f"real_poles={self.real_poles!r} is not one of ('keep', 'stabilised')")
+            raise IdentError(f"real_poles={self.real_poles!r} is not one of keep, stabilised")
         if not self.min_half_power_lines >= 0:
             raise IdentError(f"min_half_power_lines must be >= 0, got {self.min_half_power_lines}")
         if not self.spread_factor >= 1:
@@ -209,7 +210,7 @@ class AutoOptions:
         names = set(cls.__dataclass_fields__)
         bad = sorted(set(d) - names)
         if bad:
-            raise IdentError(f"unknown auto option(s) {bad}; allowed: {sorted(names)}")
+            raise IdentError(f"unknown auto option(s) {plain.names(bad)}; allowed: {plain.names(sorted(names))}")
         for k in ("band_of_interest_hz",):
             if d.get(k) is not None:
                 d[k] = tuple(float(x) for x in d[k])

@@ -35,6 +35,7 @@ from typing import Literal, Sequence
 
 import numpy as np
 
+from fnsi_lab import plain
 from fnsi_lab.ident.errors import IdentError
 
 Criterion = Literal["seed", "aic", "mdl"]
@@ -138,7 +139,7 @@ def ic_line_mask(frequencies_hz, excited, n_outputs: int, band="auto"):
     exc = np.asarray(excited, bool)
     if isinstance(band, str):
         if band not in IC_BANDS:
-            raise IdentError(f"ic band={band!r} is not one of {', '.join(map(repr, IC_BANDS))} "
+            raise IdentError(f"ic band={band!r} is not one of {plain.names(IC_BANDS)} "
                              "or a (f_min, f_max) pair in Hz")
         if band == "auto":
             band = "excited" if n_outputs <= FEW_OUTPUTS else "processed"
@@ -151,7 +152,7 @@ def ic_line_mask(frequencies_hz, excited, n_outputs: int, band="auto"):
     lo, hi = float(band[0]), float(band[1])
     mask = (f >= lo) & (f <= hi)
     if not mask.any():
-        raise IdentError(f"the information-criterion band {band!r} Hz holds no processed line")
+        raise IdentError(f"the information-criterion band {plain.band_hz(band)} holds no processed line")
     return mask, (lo, hi)
 
 

@@ -30,6 +30,7 @@ from typing import Sequence
 
 import numpy as np
 
+from fnsi_lab import plain
 from fnsi_lab.ident.errors import IdentError
 
 STAB_CLASSES: tuple[str, ...] = ("new", "frequency", "damping", "mode", "stable")
@@ -161,11 +162,11 @@ def classify_stabilisation(orders: Sequence[int], frequency_hz: Sequence, dampin
     """
     for name, v in (("freq_tol", freq_tol), ("damping_tol", damping_tol), ("mac_tol", mac_tol)):
         if not (np.isfinite(v) and v >= 0):
-            raise IdentError(f"{name} must be a finite number >= 0, got {v!r}")
+            raise IdentError(f"{name} must be a finite number >= 0, got {plain.value(v)}")
     if not (len(orders) == len(frequency_hz) == len(damping_ratio) == len(mode_shapes)):
         raise IdentError("orders, frequency_hz, damping_ratio and mode_shapes differ in length")
     if int(lookback) < 1:
-        raise IdentError(f"lookback must be >= 1, got {lookback!r}")
+        raise IdentError(f"lookback must be >= 1, got {plain.value(lookback)}")
     rank = {"new": 0, "frequency": 1, "damping": 2, "mode": 3, "stable": 4}
     f1, f2 = float(band_hz[0]), float(band_hz[1])
     out = []

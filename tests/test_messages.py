@@ -1,0 +1,109 @@
+"""User-facing messages read as plain English, never as Python reprs (an outside probe found
+``['wing', 'payload']``, ``(2.0, 15.0)`` and the like in errors and notes).
+
+Each case runs the real command line on a bad input and checks the one-line error: it names
+the values as a lab engineer would write them (``X1, X2``, ``2-15 Hz``), with no list, tuple
+or dict repr, no ``None`` and no numpy scalar repr."""
+
+from __future__ import annotations
+
+import re
+
+import pytest
+
+from fnsi_lab.cli import main
+
+#: What a Python repr leaves in a message (a list or tuple of strings, a dict, None, a numpy
+#: scalar); ``[2, 15]`` as the user wrote it in YAML is allowed.
+REPR = re.compile(r"\['|\('|\{'|\bNone\b|np\.float|np\.int|array\(")
+
+#: The cubic chain's config, one top-level key each (a case replaces or adds keys).
+CONFIG = {
+    "band_hz": "[3, 150]",
+    "transient_periods": "1",
+    "output_quantity": "displacement",
+    "inputs": "\n  - {name: F-X3, driving_point: X3}",
+    "nonlinearities": "\n  - {name: knl, kind: polynomial, exponent: 3, channels: {X2: 1, X3: -1}}",
+}
+
+
+def write_config(path, **change: str):
+    """CONFIG with the keys of ``change`` replaced or added, written to ``path``."""
+    path.write_text("".join(f"{k}: {v}\n" for k, v in {**CONFIG, **change}.items()))
+    return path
+
+
+def assert_plain(message: str) -> None:
+    """No Python repr in ``message``."""
+    assert not REPR.search(message), message
+
+
+@pytest.fixture(scope="module")
+def chain(tmp_path_factory):
+    """The 3-DOF cubic chain (conftest.write_cubic_chain: outputs X1, X2, X3, force F-X3)."""
+    from conftest import write_cubic_chain
+
+    d = tmp_path_factory.mktemp("messages")
+    write_cubic_chain(d / "chain.npz")
+    return d
+
+
+def run_error(capsys, args: list[str]) -> str:
+    """The one-line error of ``fnsi-lab ARGS`` (exit 2), checked free of reprs."""
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0, err
+    assert_plain(err)
+    return err
+
+
+@pytest.mark.parametrize("change, expect", [
+    # a misspelt output in outputs: (was "output channel(s) ['X9'] ... (outputs: ['X1', ...])")
+    ({"outputs": "[X1, X9]"}, "output channel(s) 'X9' not in the file (outputs: X1, X2, X3)"),
+    # a band upside down (was "got [150.0, 3.0]")
+    ({"band_hz": "[150, 3]"}, "got f_min 150, f_max 3 Hz"),
+    # a band above Nyquist (was "band_hz [3.0, 400.0] ends above")
+    ({"band_hz": "[3, 400]"}, "band_hz 3-400 Hz ends above the Nyquist frequency 250 Hz"),
+    # a misspelt kind (was "use one of ['polynomial', 'trilinear', ...]")
+    ({"nonlinearities": "[{name: k, kind: cubc, channels: {X2: 1}}]"},
+     "use one of polynomial, trilinear"),
+    # a misspelt channel of an element (was "outputs ['X1', 'X2', 'X3']")
+    ({"nonlinearities": "[{name: k, kind: polynomial, channels: {X7: 1}}]"},
+     "identified outputs X1, X2, X3"),
+    # outputs given as a mapping (was "got {'X1': 1}")
+    ({"outputs": "{X1: 1}"}, "got {X1: 1}"),
+    # a list where a number belongs (was "got ['a', 'b']")
+    ({"max_order": "[a, b]"}, "got [a, b]"),
+    # a typo in a top-level key with no close match (was "known keys: ['auto', ...]")
+    ({"zzzzzz": "1"}, "known keys: "),
+    # an unknown auto option (was "unknown auto option(s) ['zzz']; allowed: [...]")
+    ({"auto": "{zzz: 1}"}, "unknown auto option(s) zzz; allowed: "),
+])
+def test_ident_config_errors_name_values_in_plain_text(chain, tmp_path, capsys, change, expect):
+    """Each bad config gives one line without reprs that says what was wrong, in the user's
+    words; the old messages held a list/dict repr (the comment above each case)."""
+    cfg = write_config(tmp_path / "c.yaml", **change)
+    err = run_error(capsys, ["ident", str(chain / "chain.npz"), "--config", str(cfg),
+                             "--order", "4"])
+    assert expect in err
+
+
+def test_plain_helpers():
+    """The shared helpers: names, bands, numbers and echoed values in plain text."""
+    import numpy as np
+
+    from fnsi_lab import plain
+
+    assert plain.names(["wing", "payload"]) == "wing, payload"
+    assert plain.names(("wing",), quote=True) == "'wing'"
+    assert plain.names([]) == "none"
+    assert plain.names(list("abcdefg"), limit=3) == "a, b, c, ... (7 in all)"
+    assert plain.band_hz((2.0, 15.0)) == "2-15 Hz"
+    assert plain.band_hz(np.array([0.596, 199.7])) == "0.596-199.7 Hz"
+    assert plain.number(np.float64(1 / 3)) == "0.3333"
+    assert plain.number(np.int64(11264)) == "11264"
+    assert plain.quantity(0.00012345678, "m") == "0.0001235 m"
+    assert plain.value(["wing", 2.0]) == "[wing, 2]"
+    assert plain.value({"wing": 1, "payload": -1}) == "{wing: 1, payload: -1}"
+    assert plain.value(None) == "nothing"
+    assert plain.weights({"wing": 1.0, "payload": -1.0}) == "wing +1, payload -1"
