@@ -61,6 +61,11 @@ def register(subparsers) -> None:
     p.set_defaults(handler=run_analyse)
 
 
+def _approx(resolution_hz: float | None) -> str:
+    """``~`` before a frequency read at a line (half power), else nothing."""
+    return "~" if resolution_hz else ""
+
+
 def _fmt_db(x: Any) -> str:
     return "     -" if x is None else f"{x:6.1f}"
 
@@ -85,19 +90,33 @@ def print_summary(report: Any, out=None) -> None:
             print(f"  note: {note}", file=out)
         if rec.resonances:
             print("  resonances: " + ", ".join(
-                f"{r.frequency_hz:.4g} Hz ({100 * r.damping_ratio:.2f} %)"
+                f"{_approx(r.resolution_hz)}{r.frequency_hz:.4g} Hz ({100 * r.damping_ratio:.2f} %)"
                 for r in rec.resonances), file=out)
+            coarse = [r.resolution_hz for r in rec.resonances if r.resolution_hz]
+            if coarse:
+                print(f"  (~: read at the peak's line by its half-power points, +-{coarse[0]:.3g}"
+                      " Hz; the others from a second-order fit)", file=out)
     for note in report.notes:
         print(f"note: {note}", file=out)
     lv = report.levels
     if lv:
         print("by level (input RMS " + ", ".join(f"{x:.4g}" for x in lv["input_rms"]) + "):",
               file=out)
-        for row in lv["resonances"]:
-            f = ", ".join("-" if v is None else f"{v:.4g}" for v in row["frequency_hz"])
+        for row in sorted(lv["resonances"] + lv.get("resonances_appearing", []),
+                          key=lambda r: next(f for f in r["frequency_hz"] if f is not None)):
+            f = ", ".join("-" if v is None else f"{_approx(r)}{v:.4g}"
+                          for v, r in zip(row["frequency_hz"], row["resolution_hz"]))
             s = ", ".join("-" if v is None else f"{v:+.2f}" for v in row["shift_percent"])
             z = ", ".join("-" if v is None else f"{100 * v:.2f}" for v in row["damping_ratio"])
             print(f"  resonance {f} Hz (shift {s} %; damping {z} %)", file=out)
+        from fnsi_lab.ident.core.level_comparison import SAME_SHAPE_MAC
+
+        print("  (a resonance is followed from level to level where its frequency is the "
+              f"nearest and its shape agrees, MAC >= {SAME_SHAPE_MAC}"
+              + ("; ~: read at a line, +- half the line spacing)"
+                 if any(r for row in lv["resonances"] + lv.get("resonances_appearing", [])
+                        for r in row["resolution_hz"]) else ")"),
+              file=out)
         rising = [r["name"] for r in lv["outputs"]
                   if None not in r["relative_distortion_db"]
                   and r["relative_distortion_db"][-1] > r["relative_distortion_db"][0]]

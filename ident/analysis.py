@@ -161,12 +161,20 @@ def analyse_inputs(inputs: Sequence[IdentInput], cfg: IdentConfig | None = None,
                for inp in inputs]
     notes = []
     outputs = [tuple(o.name for o in r.outputs) for r in records]
-    same = all(set(o) == set(outputs[0]) for o in outputs) and all(
-        r.input_channel == records[0].input_channel for r in records)
+    common = set(outputs[0]).intersection(*map(set, outputs[1:]))
+    same = bool(common) and all(r.input_channel == records[0].input_channel for r in records)
     if len(records) >= 2 and not same:   # levels of one structure share their channels
-        notes.append("not compared by level: the records do not share their outputs and "
-                     "drive (" + "; ".join(f"{r.path}: {', '.join(o)} / {r.input_channel}"
-                                           for r, o in zip(records, outputs)) + ")")
+        notes.append("not compared by level: the records do not share their drive and any "
+                     "output (" + "; ".join(f"{r.path}: {', '.join(o)} / {r.input_channel}"
+                                            for r, o in zip(records, outputs)) + ")")
+    elif len(records) >= 2 and any(set(o) != common for o in outputs):
+        # a record with an extra channel (a sensor added between levels): compared on the
+        # outputs they share
+        extra = "; ".join(f"{r.path}: {', '.join(n for n in o if n not in common)}"
+                          for r, o in zip(records, outputs) if set(o) != common)
+        notes.append(f"compared by level on the outputs all records have "
+                     f"({', '.join(n for n in outputs[0] if n in common)}); left out of the "
+                     f"comparison: {extra}")
     levels = compare_levels(records) if len(records) >= 2 and same else None
     return DistortionReport(records=records, levels=levels,
                             timings_s={"analysis": time.perf_counter() - t0}, notes=notes)

@@ -303,3 +303,64 @@ def test_records_of_two_structures_are_not_compared_by_level(tmp_path):
     assert rep.levels is None
     (note,) = rep.to_json()["notes"]
     assert "not compared by level" in note and "F1.npz: a, b / F1" in note
+
+
+def _modal_record(modes, level, name, seed, channels=("a", "b")):
+    """A linear 2-output record driven by a full-grid multisine (2-12 Hz, 0.0625 Hz lines,
+    3 periods): ``modes`` as (frequency_hz, damping_ratio, shape over the outputs); the
+    FRF is their sum. A tiny noise keeps the period statistics finite."""
+    from fnsi_lab.ident.core.io import input_from_arrays
+
+    fs, n = 64.0, 1024
+    f = np.fft.rfftfreq(n, 1 / fs)
+    rng = np.random.default_rng(seed)
+    U = np.zeros(f.size, complex)
+    band = (f >= 2) & (f <= 12)
+    U[band] = np.exp(2j * np.pi * rng.random(band.sum()))
+    G = np.zeros((f.size, len(channels)), complex)
+    for fn, zeta, shape in modes:
+        w, wn = 2 * np.pi * f, 2 * np.pi * fn
+        G += np.outer(1 / (wn ** 2 - w ** 2 + 2j * zeta * wn * w), np.asarray(shape, float))
+    u = np.fft.irfft(U, n)
+    u *= level / np.sqrt(np.mean(u ** 2))
+    y = np.fft.irfft(G * np.fft.rfft(u)[:, None], n, axis=0)
+    u, y = np.tile(u, 3)[:, None], np.tile(y, (3, 1))
+    y = y + 1e-7 * np.std(y) * rng.standard_normal(y.shape)
+    return input_from_arrays({"u": u, "y": y, "fs": fs, "N": n, "channels": list(channels),
+                              "input_channels": ["F"]}, name)
+
+
+def test_a_resonance_is_followed_only_where_its_shape_agrees():
+    """Two levels of one structure: at the low level modes at 5.0 Hz (outputs in phase) and
+    8.0 Hz (in opposition); at the high level the out-of-phase mode has softened to 5.3 Hz
+    (a joint between the two outputs slipping) and the in-phase one is gone. By frequency
+    alone 5.3 Hz is the 5.0 Hz mode's +6 %; by shape (MAC 0 against it, 1 against the
+    8.0 Hz mode) it is the 8.0 Hz mode's -34 %."""
+    import fnsi_lab
+
+    low = _modal_record([(5.0, 0.01, (1, 1)), (8.0, 0.01, (1, -1))], 1.0, "low.npz", 0)
+    high = _modal_record([(5.3, 0.01, (1, -1))], 3.0, "high.npz", 1)
+    rows = fnsi_lab.analyse([low, high]).to_json()["levels"]["resonances"]
+    by_first = {round(r["frequency_hz"][0], 1): r for r in rows if r["first_level"] == 0}
+    assert by_first[5.0]["frequency_hz"][1] is None
+    moved = by_first[8.0]
+    assert moved["frequency_hz"][1] == pytest.approx(5.3, rel=0.01)
+    assert moved["shift_percent"][1] == pytest.approx(-33.75, abs=1.0)
+    assert moved["mac"][1] > 0.99 and moved["mac"][0] is None
+
+
+def test_a_record_with_an_extra_channel_is_compared_on_the_shared_outputs():
+    """A sensor added between two levels: the records are compared by level on the outputs
+    both have (the note names the extra one), where they had not been compared at all."""
+    import fnsi_lab
+
+    low = _modal_record([(6.0, 0.01, (1, 0.5))], 1.0, "low.npz", 0)
+    high = _modal_record([(5.8, 0.01, (1, 0.5, 0.2))], 3.0, "high.npz", 1,
+                         channels=("a", "b", "c"))
+    doc = fnsi_lab.analyse([low, high]).to_json()
+    assert doc["levels"] is not None
+    assert [o["name"] for o in doc["levels"]["outputs"]] == ["a", "b"]
+    (row,) = doc["levels"]["resonances"]
+    assert row["shift_percent"][1] == pytest.approx(100 * (5.8 / 6.0 - 1), abs=0.3)
+    (note,) = doc["notes"]
+    assert "high.npz: c" in note

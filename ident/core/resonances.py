@@ -17,15 +17,18 @@ __all__ = ["Resonance", "find_resonances"]
 
 @dataclass(frozen=True)
 class Resonance:
-    """A resonance of the BLA: ``frequency_hz``, ``damping_ratio`` and how it was read."""
+    """A resonance of the BLA: ``frequency_hz``, ``damping_ratio``, how it was read
+    (``method``) and ``resolution_hz``: 0 for a fitted frequency, half the line spacing for
+    a half-power reading (its frequency is the peak's line)."""
 
     frequency_hz: float
     damping_ratio: float
     method: str
+    resolution_hz: float = 0.0
 
     def to_dict(self) -> dict:
         return {"frequency_hz": self.frequency_hz, "damping_ratio": self.damping_ratio,
-                "method": self.method}
+                "method": self.method, "resolution_hz": self.resolution_hz}
 
 
 def _sdof_fit(f_hz: np.ndarray, G: np.ndarray, f_peak: float) -> tuple[float, float] | None:
@@ -88,7 +91,8 @@ def find_resonances(frequency_hz: np.ndarray, G: np.ndarray, *,
         Frequency and damping from a common-denominator second-order fit of those outputs
         over the lines within twice the peak's half-prominence width (``method: 'sdof
         fit'``), else from the half-power points of their summed normalised power
-        (``'half power'``).
+        (``'half power'``; the frequency is then the peak's line, ``resolution_hz`` half
+        the line spacing).
     """
     F, p = G.shape
     if F < 5:
@@ -143,7 +147,8 @@ def find_resonances(frequency_hz: np.ndarray, G: np.ndarray, *,
                                         1e-300))
         hp = _half_power(frequency_hz, cmif, pk)
         if hp is not None:
-            out.append(Resonance(float(frequency_hz[pk]), hp, "half power"))
+            out.append(Resonance(float(frequency_hz[pk]), hp, "half power",
+                                 resolution_hz=_df(frequency_hz) / 2))
     return out
 
 
