@@ -34,6 +34,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, Mapping
 
+from fnsi_lab import plain
 from fnsi_lab.daq.channels import QUANTITIES, ChannelInfo
 from fnsi_lab.daq.multisine import ExcitationConfig
 from fnsi_lab.errors import ConfigError
@@ -121,7 +122,7 @@ def _parse_excitation(sec: Section, sample_rate_hz: float) -> ExcitationConfig:
     band = sec.numbers("band_hz", length=2)
     nyquist = sample_rate_hz / 2
     if not 0 <= band[0] < band[1]:
-        raise sec.error("band_hz", f"band {list(band)} is not increasing and >= 0",
+        raise sec.error("band_hz", f"band {plain.band_hz(band)} is not increasing and >= 0",
                         fix="write [f_low, f_high] with f_low < f_high")
     if band[1] >= nyquist:
         raise sec.error("band_hz", f"upper edge {band[1]:g} Hz is at or above Nyquist "
@@ -135,7 +136,7 @@ def _parse_excitation(sec: Section, sample_rate_hz: float) -> ExcitationConfig:
     last = int(band[1] // resolution)
     if last < max(first, 1):
         raise sec.error("band_hz", f"no DFT line of a {n}-sample period "
-                        f"({resolution:g} Hz spacing) falls inside {list(band)} Hz",
+                        f"({resolution:g} Hz spacing) falls inside {plain.band_hz(band)}",
                         fix="widen the band or use more samples per period")
     periods = sec.integer("periods", 1, minimum=1)
     transient = sec.integer("transient_periods", 0, minimum=0)
@@ -145,13 +146,13 @@ def _parse_excitation(sec: Section, sample_rate_hz: float) -> ExcitationConfig:
                         fix="use transient_periods < periods")
     seed = sec.raw("seed", 0)
     if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int) or seed < 0):
-        raise sec.error("seed", f"expected a whole number >= 0 or null, got {seed!r}")
+        raise sec.error("seed", f"expected a whole number >= 0 or null, got {plain.value(seed)}")
     levels = sec.numbers("levels", None) or ()
     if any(not level > 0 for level in levels):
-        raise sec.error("levels", f"every level must be an RMS > 0, got {list(levels)}",
+        raise sec.error("levels", f"every level must be an RMS > 0, got {plain.names(levels)}",
                         fix="list positive force RMS values, e.g. [10, 50, 100]")
     if len(set(levels)) != len(levels):
-        raise sec.error("levels", f"repeated level in {list(levels)}",
+        raise sec.error("levels", f"repeated level in {plain.names(levels)}",
                         fix="list each force level once")
     exc = ExcitationConfig(
         band_hz=(band[0], band[1]),
@@ -259,7 +260,7 @@ def parse_experiment(data: Any, *, file: str | None = None, text: str = "") -> E
     from fnsi_lab.daq.registry import SOURCES
     if kind not in SOURCES:
         raise ConfigError(f"unknown source kind {kind!r}", file=file, field="source.kind",
-                          fix=f"use one of {sorted(SOURCES)}")
+                          fix=f"use one of {plain.names(sorted(SOURCES))}")
     return config
 
 

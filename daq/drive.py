@@ -25,6 +25,7 @@ from typing import Any, Literal, Sequence
 
 import numpy as np
 
+from fnsi_lab import plain
 from fnsi_lab.daq.multisine import ExcitationConfig, Multisine, multisine
 from fnsi_lab.errors import ConfigError, DataFileError
 from fnsi_lab.outputs import atomic_output, dumps
@@ -237,7 +238,7 @@ def _wav_bytes(flat: np.ndarray, fs: float, encoding: str, full_scale: float | N
                info: dict[str, Any]) -> bytes:
     if encoding not in WAV_ENCODINGS:
         raise ConfigError(f"unknown WAV encoding {encoding!r}", field="--wav-encoding",
-                          fix=f"use one of {list(WAV_ENCODINGS)}")
+                          fix=f"use one of {plain.names(WAV_ENCODINGS)}")
     rate = int(round(fs))
     if abs(rate - fs) > 1e-9 * fs:
         raise ConfigError(f"WAV needs a whole-number sample rate, the experiment has {fs:g} Hz",

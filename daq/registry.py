@@ -10,6 +10,7 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
+from fnsi_lab import plain
 from fnsi_lab.errors import ConfigError
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -39,7 +40,7 @@ def source_class(kind: str) -> type["Source"]:
         module_name, class_name = SOURCES[kind]
     except KeyError:
         raise ConfigError(f"unknown source kind {kind!r}", field="source.kind",
-                          fix=f"use one of {sorted(SOURCES)}") from None
+                          fix=f"use one of {plain.names(sorted(SOURCES))}") from None
     try:
         module = importlib.import_module(module_name)
     except ImportError as exc:

@@ -21,6 +21,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from fnsi_lab import plain
 from fnsi_lab.daq.block import Block
 from fnsi_lab.daq.source import Source, SourceEvent
 from fnsi_lab.errors import ConfigError
@@ -105,10 +106,10 @@ class TriggeredSource(Source):
         names = [c.name for c in inner.channels]
         if trigger.channel not in names:
             raise ConfigError(f"trigger channel {trigger.channel!r} is not a channel of the source",
-                              field="trigger.channel", fix=f"use one of {names}")
+                              field="trigger.channel", fix=f"use one of {plain.names(names)}")
         if trigger.slope not in SLOPES:
             raise ConfigError(f"unknown slope {trigger.slope!r}", field="trigger.slope",
-                              fix=f"use one of {list(SLOPES)}")
+                              fix=f"use one of {plain.names(SLOPES)}")
         if trigger.pre_samples < 0:
             raise ConfigError("pre_samples must be >= 0", field="trigger.pre_samples")
         super().__init__(inner.channels, inner.sample_rate_hz)

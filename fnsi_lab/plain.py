@@ -77,11 +77,12 @@ def weights(mapping: Mapping[Any, Any]) -> str:
     return ", ".join(out) or "none"
 
 
-def value(x: Any, digits: int = 4) -> str:
+def value(x: Any, digits: int = 10) -> str:
     """A value a user wrote (a config field, an option) echoed back as plain text.
 
     Written as YAML would show it, so the user recognises what they typed: a top-level
-    string quoted (``'abc'``), numbers via :func:`number`, lists ``[2, 15]``, mappings
+    string quoted (``'abc'``), numbers via :func:`number` (to ``digits``: enough to show
+    ``1024.5`` whole, not a numpy repr), lists ``[2, 15]``, mappings
     ``{wing: 1, payload: -1}`` (strings inside unquoted), None as ``nothing``.
     """
     if x is None:

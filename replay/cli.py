@@ -18,6 +18,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
+from fnsi_lab import plain
 from fnsi_lab import arguments as opt
 from fnsi_lab.errors import ConfigError
 from fnsi_lab.blas import limit_blas_threads
@@ -67,15 +68,15 @@ def check_ident_channels(config: Any, channels: Any) -> None:
     for name in config.outputs or ():
         if name not in outs:
             raise ConfigError(f"output channel {name!r} is not recorded by this experiment "
-                              f"(its output channels: {outs})", file=file, field="outputs", fix=fix)
+                              f"(its output channels: {plain.names(outs)})", file=file, field="outputs", fix=fix)
     selected = list(config.outputs or outs)
     for spec in config.inputs:
         if spec.name not in ins:
             raise ConfigError(f"input channel {spec.name!r} is not recorded by this experiment "
-                              f"(its force channels: {ins})", file=file, field="inputs", fix=fix)
+                              f"(its force channels: {plain.names(ins)})", file=file, field="inputs", fix=fix)
         if spec.driving_point is not None and spec.driving_point not in selected:
             raise ConfigError(f"driving point {spec.driving_point!r} of input {spec.name!r} is "
-                              f"not among the identified outputs {selected}", file=file,
+                              f"not among the identified outputs {plain.names(selected)}", file=file,
                               field="inputs", fix="name a recorded response channel at the "
                                                   "excitation point (and list it in outputs:)")
     for nl in config.nonlinearities:

@@ -107,3 +107,49 @@ def test_plain_helpers():
     assert plain.value({"wing": 1, "payload": -1}) == "{wing: 1, payload: -1}"
     assert plain.value(None) == "nothing"
     assert plain.weights({"wing": 1.0, "payload": -1.0}) == "wing +1, payload -1"
+
+
+@pytest.mark.parametrize("old, new, expect", [
+    # was "got [5.0, -1.0]"
+    ("  rms: 5.0                # N\n", "  levels: [5, -1]\n", "every level must be an RMS > 0, got 5, -1"),
+    # was "band [50.0, 5.0] is not increasing"
+    ("band_hz: [5, 50]", "band_hz: [50, 5]", "band 50-5 Hz is not increasing"),
+    # was "use one of ['aircraft', 'can', ...]"
+    ("kind: simulated", "kind: simulatd", "use one of aircraft, can, replay, serial, simulated"),
+    # was "use one of ['X1', 'X2', 'X3']"
+    ("quantity: displacement", "quantity: {X9: displacement}", "use one of X1, X2, X3"),
+    # was "got ['a']"
+    ("phases: random", "phases: [a]", "expected text, got [a]"),
+])
+def test_acquire_config_errors_name_values_in_plain_text(tmp_path, capsys, old, new, expect):
+    """The packaged lumped experiment with one field spoilt: one line, no repr."""
+    from importlib.resources import files
+
+    text = (files("fnsi_lab.daq") / "data" / "lumped.yaml").read_text()
+    assert old in text
+    cfg = tmp_path / "acq.yaml"
+    cfg.write_text(text.replace(old, new))
+    err = run_error(capsys, ["acquire", "--config", str(cfg), "--out", str(tmp_path / "a.mcap"),
+                             "--quiet", "--no-info"])
+    assert expect in err
+    assert not (tmp_path / "a.mcap").exists()
+
+
+def test_analyse_misspelt_output_names_it_and_the_outputs(chain, tmp_path, capsys):
+    """``analyse --output`` with a name the record lacks (was "--output: --output ['X9'] not
+    among the outputs ['X1', 'X2', 'X3']")."""
+    err = run_error(capsys, ["analyse", str(chain / "chain.npz"), "--output", "X9",
+                             "--report", str(tmp_path / "a.html"), "--quiet"])
+    assert "--output: 'X9' not among the outputs (X1, X2, X3)" in err
+
+
+def test_import_of_forces_only_lists_the_channels(tmp_path, capsys):
+    """A CSV whose channels are all forces (was "inputs: ['F1', 'F2'], outputs: []")."""
+    import numpy as np
+
+    t = np.arange(64) / 100.0
+    rows = "\n".join(f"{a:.4f},{np.sin(a):.6f},{np.cos(a):.6f}" for a in t)
+    src = tmp_path / "forces.csv"
+    src.write_text("time [s],F1 [N],F2 [N]\n" + rows + "\n")
+    err = run_error(capsys, ["import", str(src), "--out", str(tmp_path / "r.mcap")])
+    assert "(inputs: F1, F2; outputs: none)" in err

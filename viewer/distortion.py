@@ -27,6 +27,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from fnsi_lab import plain
 from fnsi_lab.viewer import paths
 from fnsi_lab.viewer.figure import Axis, Panel, Series, canvas_range, stack
 
@@ -76,8 +77,9 @@ def chosen_outputs(report: Any, names: Sequence[str] | None = None, n: int = 3) 
         missing = [x for x in names if x not in known]
         if missing:
             from fnsi_lab.errors import ConfigError
-            raise ConfigError(f"--output {missing} not among the outputs {sorted(known)}",
-                              field="--output", fix="name analysed outputs")
+            raise ConfigError(f"{plain.names(missing, quote=True)} not among the outputs "
+                              f"({plain.names(sorted(known))})", field="--output",
+                              fix="name analysed outputs")
         return list(names)
     top = max(recs, key=lambda r: r.input_rms)
 

@@ -19,6 +19,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from fnsi_lab import plain
 from fnsi_lab.daq.block import Block
 from fnsi_lab.daq.channels import ChannelInfo
 from fnsi_lab.daq.formats.errors import LabFileError
@@ -175,8 +176,8 @@ def plan_import(table: LabTable, *, inputs: Sequence[str] | None = None,
                                     node=lab.node, direction=lab.direction))
     if not any(c.is_force for c in channels) or all(c.is_force for c in channels):
         raise LabFileError(f"{p}: an identification needs at least one input and one output "
-                           f"channel (inputs: {[c.name for c in channels if c.is_force]}, "
-                           f"outputs: {[c.name for c in channels if not c.is_force]})")
+                           f"channel (inputs: {plain.names([c.name for c in channels if c.is_force])}; "
+                           f"outputs: {plain.names([c.name for c in channels if not c.is_force])})")
     fs = check_rate(table.sample_rate_hz, sample_rate_hz, path=p, field="sample rate")
     n = _agree(table.samples_per_period, samples_per_period, path=p, name="samples-per-period")
     k = _agree(table.transient_periods, transient_periods, path=p, name="transient-periods")

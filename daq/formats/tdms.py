@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from fnsi_lab import plain
 from fnsi_lab.daq.formats.dof import parse_node_direction, quantity_from_unit
 from fnsi_lab.daq.formats.errors import LabFileError
 from fnsi_lab.daq.formats.table import (LabChannel, LabTable, common_rate, rate_from_increment,
@@ -41,11 +42,11 @@ def _integer_property(objects: list[Any], key: str, path: str) -> int | None:
             try:
                 number = int(value)
             except (TypeError, ValueError):
-                raise LabFileError(f"{path}: property {name!r} of {_where(obj)}: {value!r} is "
+                raise LabFileError(f"{path}: property {name!r} of {_where(obj)}: {plain.value(value)} is "
                                    "not a whole number (fix: correct the file or give the option "
                                    f"--{key.replace('_', '-')})") from None
             if number < 0 or number != float(value):
-                raise LabFileError(f"{path}: property {name!r} of {_where(obj)}: {value!r} is "
+                raise LabFileError(f"{path}: property {name!r} of {_where(obj)}: {plain.value(value)} is "
                                    "not a whole number >= 0")
             return number
     return None
@@ -105,7 +106,7 @@ def read_tdms(path: str | os.PathLike[str]) -> LabTable:
         columns.append(np.asarray(values, dtype=np.float64))
     if not columns:
         raise LabFileError(f"{p}: no numeric channel in the TDMS file (groups: "
-                           f"{[g.name for g in tdms.groups()]})")
+                           f"{plain.names([g.name for g in tdms.groups()])})")
     names = [c.name for c in channels]
     data = stack_columns(columns, names, path=p, kind="channel")
     rate = common_rate(rates, path=p, kind="channel")

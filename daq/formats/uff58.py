@@ -20,6 +20,7 @@ import os
 
 import numpy as np
 
+from fnsi_lab import plain
 from fnsi_lab.daq.formats.dof import direction_from_code, quantity_from_unit
 from fnsi_lab.daq.formats.errors import LabFileError
 from fnsi_lab.daq.formats.table import (LabChannel, LabTable, common_rate, rate_from_increment,
@@ -104,7 +105,7 @@ def read_uff58(path: str | os.PathLike[str]) -> LabTable:
         columns.append(np.asarray(values, dtype=np.float64))
     if not columns:
         raise LabFileError(f"{p}: no time record (dataset 58 with function type 1) in the file "
-                           f"(datasets found: {sorted({int(t) for t in types})})")
+                           f"(datasets found: {plain.names(sorted({int(t) for t in types}))})")
     names = [c.name for c in channels]
     rate = common_rate(rates, path=p, kind="record")
     data = stack_columns(columns, names, path=p, kind="record")

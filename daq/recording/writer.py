@@ -23,6 +23,7 @@ from typing import Any, Iterable, Literal, Mapping, Sequence
 import numpy as np
 from mcap.writer import CompressionType, Writer
 
+from fnsi_lab import plain
 from fnsi_lab.daq.block import Block
 from fnsi_lab.daq.channels import ChannelInfo
 from fnsi_lab.daq.recording import schema, topics
@@ -127,11 +128,11 @@ class Recorder:
             raise ConfigError("a recording needs at least one channel")
         names = [c.name for c in channels]
         if len(set(names)) != len(names):
-            raise ConfigError(f"duplicate channel names in {names}")
+            raise ConfigError(f"duplicate channel names in {plain.names(names)}")
         if not sample_rate_hz > 0:
             raise ConfigError(f"sample_rate_hz must be > 0, got {sample_rate_hz}")
         if compression not in _COMPRESSION:
-            raise ConfigError(f"compression must be one of {sorted(_COMPRESSION)}, got {compression!r}")
+            raise ConfigError(f"compression must be one of {plain.names(sorted(_COMPRESSION))}, got {plain.value(compression)}")
         if not flush_interval_s > 0:
             raise ConfigError(f"flush_interval_s must be > 0, got {flush_interval_s}")
         if not max_chunk_signal_s > 0:

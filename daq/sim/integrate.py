@@ -50,6 +50,7 @@ import numpy as np
 import scipy.linalg as sla
 from numba import njit
 
+from fnsi_lab import plain
 from fnsi_lab.daq.sim.model import StructuralModel
 from fnsi_lab.daq.sim.nonlinear import BASIS_COULOMB, BASIS_NEG, BASIS_POLY, BASIS_POS, element_tables
 from fnsi_lab.errors import ConfigError, FnsiLabError
@@ -634,7 +635,7 @@ def simulate(model: StructuralModel, force: np.ndarray, sample_rate_hz: float, *
     quantities = tuple(dict.fromkeys(quantities))  # each once (the outputs accumulate per name)
     bad = sorted(set(quantities) - {"displacement", "velocity", "acceleration"})
     if bad:
-        raise ConfigError(f"unknown quantities {bad}: use displacement, velocity, acceleration")
+        raise ConfigError(f"unknown quantities {plain.names(bad)}: use displacement, velocity, acceleration")
     p = np.asarray(force, dtype=float)
     if p.ndim == 1:
         p = p[:, None]

@@ -46,6 +46,7 @@ from typing import Any, Literal, Mapping
 
 import numpy as np
 
+from fnsi_lab import plain
 from fnsi_lab.errors import ConfigError
 
 ElementKind = Literal["polynomial", "trilinear", "bilinear", "quadratic_damping", "coulomb"]
@@ -104,7 +105,7 @@ class NonlinearElement:
         where = f"nonlinearities.{self.name}"
         if self.kind not in ELEMENT_KINDS:
             raise ConfigError(f"unknown nonlinear element kind {self.kind!r}", field=where,
-                              fix=f"use one of {list(ELEMENT_KINDS)}")
+                              fix=f"use one of {plain.names(ELEMENT_KINDS)}")
         if not np.any(w):
             raise ConfigError("weights are all zero", field=where,
                               fix="give +1/-1 weights on the DOFs the element connects")
@@ -113,8 +114,8 @@ class NonlinearElement:
                     "coulomb": [{"f"}]}[self.kind]
         if set(self.coefficients) not in expected:
             raise ConfigError(f"{self.kind} element needs coefficients "
-                              f"{' or '.join(str(sorted(e)) for e in expected)}, got "
-                              f"{sorted(self.coefficients)}", field=where)
+                              f"{' or '.join(plain.names(sorted(e)) for e in expected)}, got "
+                              f"{plain.names(sorted(self.coefficients))}", field=where)
         n_gaps = {"trilinear": 2, "bilinear": 1}.get(self.kind, 0)
         if len(self.clearances) != n_gaps:
             raise ConfigError(f"{self.kind} element needs {n_gaps} clearance(s), got "

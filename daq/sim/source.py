@@ -47,6 +47,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from fnsi_lab import plain
 from fnsi_lab.daq.block import Block
 from fnsi_lab.daq.channels import ChannelInfo
 from fnsi_lab.daq.config import ExperimentConfig, ExcitationConfig
@@ -106,7 +107,7 @@ def model_from_mapping(data: Any, *, file: str | None = None,
 
     def dof_index(key: str, name: Any) -> int:
         if name not in index:
-            raise sec.error(key, f"unknown DOF {name!r}", fix=f"use one of {list(dofs)}")
+            raise sec.error(key, f"unknown DOF {name!r}", fix=f"use one of {plain.names(dofs)}")
         return index[name]
 
     mass = _matrix(sec, "mass", n)
@@ -140,9 +141,9 @@ def model_from_mapping(data: Any, *, file: str | None = None,
         w = np.zeros(n)
         for d, val in wmap.items():
             if d not in index:
-                raise es.error("dofs", f"unknown DOF {d!r}", fix=f"use one of {list(dofs)}")
+                raise es.error("dofs", f"unknown DOF {d!r}", fix=f"use one of {plain.names(dofs)}")
             if isinstance(val, bool) or not isinstance(val, (int, float)):
-                raise es.error("dofs", f"weight of {d!r} must be a number, got {val!r}")
+                raise es.error("dofs", f"weight of {d!r} must be a number, got {plain.value(val)}")
             w[index[d]] = float(val)
         coefs = es.raw("coefficients")
         if not isinstance(coefs, Mapping) or not all(
@@ -228,7 +229,7 @@ def parse_options(config: ExperimentConfig) -> SimOptions:
     channels = model.measured_names
     quantities = _per_channel(sec, "quantity", channels, "displacement",
                               lambda k, v: v if v in RESPONSE_QUANTITIES else None,
-                              f"one of {list(RESPONSE_QUANTITIES)}")
+                              f"one of {plain.names(RESPONSE_QUANTITIES)}")
     snr = _per_channel(sec, "snr_db", list(model.input_names) + channels, None,
                        lambda k, v: float(v) if isinstance(v, (int, float))
                        and not isinstance(v, bool) else None, "a number of dB")
@@ -261,10 +262,10 @@ def _per_channel(sec: Section, key: str, channels: list[str], default: Any, chec
         out = {ch: default for ch in channels}
         for ch, v in raw.items():
             if ch not in out:
-                raise sec.error(key, f"unknown channel {ch!r}", fix=f"use one of {channels}")
+                raise sec.error(key, f"unknown channel {ch!r}", fix=f"use one of {plain.names(channels)}")
             val = check(ch, v)
             if val is None:
-                raise sec.error(key, f"{ch}: expected {what}, got {v!r}")
+                raise sec.error(key, f"{ch}: expected {what}, got {plain.value(v)}")
             out[ch] = val
         return out
     if raw is None:
@@ -327,7 +328,7 @@ class SimulatedSource(Source):
             for c in channels:
                 if c.name not in by_name:
                     raise ConfigError(f"channel {c.name!r} is not produced by model {model.name}",
-                                      field="channels", fix=f"use names from {list(by_name)}")
+                                      field="channels", fix=f"use names from {plain.names(by_name)}")
                 base = by_name[c.name]
                 if c.quantity != base.quantity and not base.is_force:
                     unit = model.units.get("length", "m") + _SUFFIX[c.quantity]

@@ -52,6 +52,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from fnsi_lab import plain
 from fnsi_lab.daq.block import Block
 from fnsi_lab.daq.channels import ChannelInfo
 from fnsi_lab.daq.source import Source
@@ -291,7 +292,7 @@ class CanSource(Source):
         signals = sec.raw("signals")
         if not isinstance(signals, Mapping) or not signals or not all(
                 isinstance(k, str) and isinstance(v, str) for k, v in signals.items()):
-            raise sec.error("signals", f"expected a mapping channel: Message.Signal, got {signals!r}",
+            raise sec.error("signals", f"expected a mapping channel: Message.Signal, got {plain.value(signals)}",
                             fix="e.g. signals: {F-NC2W-Z: Excitation.Force}")
         kwargs = dict(
             counter=sec.string("counter", None),
@@ -325,11 +326,11 @@ class CanSource(Source):
         names = self.channel_names
         missing = [n for n in names if n not in signals]
         if missing:
-            raise self._error("signals", f"channels {missing} have no DBC signal",
+            raise self._error("signals", f"channels {plain.names(missing)} have no DBC signal",
                               fix="add 'CHANNEL: Message.Signal' for each")
         extra = [n for n in signals if n not in names]
         if extra:
-            raise self._error("signals", f"{extra} are not in the channel table",
+            raise self._error("signals", f"{plain.names(extra)} are not in the channel table",
                               fix="add them to channels: or remove them here")
         by_msg: dict[str, tuple[list[str], list[int]]] = {}
         plan = []
@@ -343,12 +344,12 @@ class CanSource(Source):
                 msg = self._db.get_message_by_name(msg_name)
             except KeyError:
                 raise self._error(f"signals.{ch.name}", f"no message {msg_name!r} in the DBC",
-                                  fix=f"use one of {sorted(m.name for m in self._db.messages)}") from None
+                                  fix=f"use one of {plain.names(sorted(m.name for m in self._db.messages))}") from None
             sig = next((s for s in msg.signals if s.name == sig_name), None)
             if sig is None:
                 raise self._error(f"signals.{ch.name}",
                                   f"message {msg_name!r} has no signal {sig_name!r}",
-                                  fix=f"use one of {[s.name for s in msg.signals]}")
+                                  fix=f"use one of {plain.names([s.name for s in msg.signals])}")
             unit = sig.unit or ""
             if unit and unit != ch.unit:
                 raise ConfigError(f"channel {ch.name!r} has unit {ch.unit!r} but DBC signal "
@@ -391,7 +392,7 @@ class CanSource(Source):
             if spec.name == trigger:
                 return spec.index
         raise self._error("trigger", f"{trigger!r} is not one of the mapped messages",
-                          fix=f"use one of {[s.name for s in self._specs.values()]}")
+                          fix=f"use one of {plain.names([s.name for s in self._specs.values()])}")
 
     # ------------------------------------------------------------------ life cycle
     def _open_bus(self) -> Any:

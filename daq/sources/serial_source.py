@@ -57,6 +57,7 @@ from typing import Any, Callable, Literal, Mapping, Sequence
 
 import numpy as np
 
+from fnsi_lab import plain
 from fnsi_lab.daq.block import Block
 from fnsi_lab.daq.channels import ChannelInfo
 from fnsi_lab.daq.source import Source
@@ -221,23 +222,23 @@ class SerialSource(Source):
             raise self._error("fields", "no fields", fix="list what each column is")
         missing = [n for n in names if n not in fields]
         if missing:
-            raise self._error("fields", f"channels {missing} are not among the fields",
+            raise self._error("fields", f"channels {plain.names(missing)} are not among the fields",
                               fix="name every channel in fields (\"_\" skips a column)")
         known = set(names) | set(_SKIP) | ({counter} if counter else set())
         unknown = [f for f in fields if f not in known]
         if unknown:
-            raise self._error("fields", f"{unknown} are neither channels nor the counter",
+            raise self._error("fields", f"{plain.names(unknown)} are neither channels nor the counter",
                               fix="use a channel name, the counter name, or \"_\" to skip")
         dup = sorted({f for f in fields if f not in _SKIP and fields.count(f) > 1})
         if dup:
-            raise self._error("fields", f"{dup} appear twice")
+            raise self._error("fields", f"{plain.names(dup)} appear twice")
         if counter is not None and counter not in fields:
             raise self._error("counter", f"counter {counter!r} is not one of the fields",
                               fix="add it to fields")
         for key, table in (("scale", scale), ("offset", offset)):
             bad = [k for k in table if k not in names]
             if bad:
-                raise self._error(key, f"{bad} are not channels")
+                raise self._error(key, f"{plain.names(bad)} are not channels")
         self._fields = fields
         self._counter_pos = fields.index(counter) if counter else None
         pos = [fields.index(n) for n in names]
@@ -298,7 +299,7 @@ class SerialSource(Source):
             fields = [c.name for c in config.channels]
         if not isinstance(fields, list) or not all(isinstance(f, str) or f is None
                                                    for f in fields):
-            raise sec.error("fields", f"expected a list of names, got {fields!r}",
+            raise sec.error("fields", f"expected a list of names, got {plain.value(fields)}",
                             fix='e.g. fields: [counter, F-NC2W-Z, "_", NC2W-Z]')
         tables = {}
         for key in ("scale", "offset"):
@@ -306,7 +307,7 @@ class SerialSource(Source):
             if not isinstance(table, Mapping) or not all(
                     isinstance(v, (int, float)) and not isinstance(v, bool)
                     for v in table.values()):
-                raise sec.error(key, f"expected channel: number pairs, got {table!r}")
+                raise sec.error(key, f"expected channel: number pairs, got {plain.value(table)}")
             tables[key] = {str(k): float(v) for k, v in table.items()}
         if fmt == "binary":
             sync_hex = sec.string("sync")
