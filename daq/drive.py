@@ -263,9 +263,10 @@ def _wav_bytes(flat: np.ndarray, fs: float, encoding: str, full_scale: float | N
             w.setframerate(rate)
             w.writeframes(raw)
     info.update({"encoding": encoding, "full_scale": scale, "sample_rate_hz": rate,
-                 "scale": (f"digital 1.0 = {scale!r} {info['unit']}" if encoding == "float32" else
-                           f"PCM code {_PCM24_MAX} = {scale!r} {info['unit']} "
-                           f"(value = code / {_PCM24_MAX} * {scale!r})")})
+                 # 7 digits: the 24-bit mantissa/code holds no more (file.full_scale: exact)
+                 "scale": (f"digital 1.0 = {scale:.7g} {info['unit']}" if encoding == "float32" else
+                           f"PCM code {_PCM24_MAX} = {scale:.7g} {info['unit']} "
+                           f"(value = code / {_PCM24_MAX} * {scale:.7g})")})
     return buf.getvalue()
 
 

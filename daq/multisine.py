@@ -11,6 +11,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from fnsi_lab import plain
 from fnsi_lab.errors import ConfigError
 
 
@@ -219,7 +220,8 @@ def multisine(samples_per_period: int, sample_rate_hz: float, band_hz: tuple[flo
     elif grid == "random-odd":
         lines = random_odd_lines(lines, detection_block, seed)
     if lines.size == 0:
-        raise ConfigError(f"no DFT line of an {n}-sample period at {sample_rate_hz} Hz lies in {band_hz} Hz")
+        raise ConfigError(f"no DFT line of an {n}-sample period at {sample_rate_hz:g} Hz lies in "
+                          f"{plain.band_hz(band_hz)}")
     rng = np.random.default_rng(seed)
     n_lines = lines.size
     if phases == "random":

@@ -19,6 +19,7 @@ from typing import Any, ClassVar, Iterator, Sequence
 
 import numpy as np
 
+from fnsi_lab import plain
 from fnsi_lab.daq.block import Block
 from fnsi_lab.daq.channels import ChannelInfo
 from fnsi_lab.errors import ConfigError, SourceError
@@ -84,7 +85,7 @@ class Source(ABC):
         names = [c.name for c in channels]
         if len(set(names)) != len(names):
             dup = sorted({n for n in names if names.count(n) > 1})
-            raise ConfigError(f"duplicate channel names {dup}", field="channels",
+            raise ConfigError(f"duplicate channel names {plain.names(dup)}", field="channels",
                               fix="give every channel a unique name")
         if not sample_rate_hz > 0:
             raise ConfigError(f"sample rate must be > 0, got {sample_rate_hz}",

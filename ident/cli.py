@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from fnsi_lab import plain
 from fnsi_lab import arguments as opt
 from fnsi_lab.ident.errors import IdentError
 
@@ -197,7 +198,8 @@ def _print_refinement(res: dict, out=None) -> None:
     if not oe:
         return
     if not oe.get("applied"):
-        print(f"output-error refinement: not run ({oe.get('reason')})", file=out)
+        print(f"output-error refinement: not run ({oe.get('reason') or 'no reason recorded'})",
+              file=out)
         return
     dropped = oe.get("dropped_modes_hz") or []
     left_out = oe.get("left_out") or []
@@ -228,10 +230,11 @@ def _print_auto_summary(res: Any, out=None, warnings: list | tuple = (),
     out = out or sys.stdout
     coefficient_units = (units or {}).get("coefficients") or {}
     ic = res.information_criterion
-    print(f"information criterion ({ic.criterion}, band {ic.band}): order {res.selected_order}; "
+    band = ic.band if isinstance(ic.band, str) else plain.band_hz(ic.band)
+    print(f"information criterion ({ic.criterion}, band {band}): order {res.selected_order}; "
           f"{int(np.sum(~ic.stable))} of {ic.orders.size} orders unstable", file=out)
     print(f"MDI at order {res.mdi_order} ({res.options.mdi_norm}, band "
-          f"{res.modal_dominancy.band_hz[0]:g}-{res.modal_dominancy.band_hz[1]:g} Hz): "
+          f"{plain.band_hz(res.modal_dominancy.band_hz)}): "
           f"confidence {res.confidence['level']}", file=out)
     print("  " + res.confidence["statement"], file=out)
     from fnsi_lab.ident.robust.pole_fate import fate_label, pole_fates

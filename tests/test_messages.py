@@ -153,3 +153,53 @@ def test_import_of_forces_only_lists_the_channels(tmp_path, capsys):
     src.write_text("time [s],F1 [N],F2 [N]\n" + rows + "\n")
     err = run_error(capsys, ["import", str(src), "--out", str(tmp_path / "r.mcap")])
     assert "(inputs: F1, F2; outputs: none)" in err
+
+
+def test_ident_summary_prints_an_explicit_criterion_band_in_hz(chain, tmp_path, capsys):
+    """``auto: {ic_band: [3, 60]}``: the summary's criterion line says ``band 3-60 Hz`` (was
+    the tuple ``band (3.0, 60.0)``)."""
+    cfg = write_config(tmp_path / "c.yaml", auto="{ic_band: [3, 60]}")
+    assert main(["ident", str(chain / "chain.npz"), "--config", str(cfg), "--auto",
+                 "--orders", "2:10"]) == 0
+    out = capsys.readouterr().out
+    line = next(s for s in out.splitlines() if s.startswith("information criterion"))
+    assert "band 3-60 Hz)" in line, line
+    assert_plain(out)
+
+
+def test_excitation_prints_its_wav_scale_in_7_digits(tmp_path, capsys):
+    """The WAV full scale as a 24-bit mantissa holds it (was the float repr,
+    ``digital 1.0 = 16.146643787758904 N``); the sidecar's file.full_scale keeps every digit."""
+    import json
+
+    out = tmp_path / "d.wav"
+    assert main(["excitation", "--config", "lumped", "--out", str(out), "--quiet"]) == 0
+    text = capsys.readouterr().out
+    scale = json.loads((tmp_path / "d.json").read_text())["file"]
+    m = re.search(r"digital 1\.0 = (\S+) N", text)
+    assert m and len(m.group(1).replace(".", "").lstrip("0")) <= 7, text
+    assert float(m.group(1)) == pytest.approx(scale["full_scale"], rel=1e-6)
+    assert scale["scale"] == f"digital 1.0 = {m.group(1)} N"
+
+
+def test_report_writes_a_suggested_stop_without_list_reprs():
+    """The HTML report's spline section lists a suggestion's clearances as numbers (was
+    ``clearances ['1.5', '1.3']``, a list of strings)."""
+    import html
+
+    import numpy as np
+
+    from fnsi_lab.viewer.report import render_report
+
+    x = np.linspace(-3.4, 3.4, 201)
+    f = 100 * np.where(x > 1.3, x - 1.3, 0) + 120 * np.where(x < -1.5, x + 1.5, 0)
+    curve = {"element": "NC2-Z", "argument": "displacement", "x": x, "force": f,
+             "std": np.full(x.size, 0.5), "knots": [-2.0, -1.0, 1.0, 2.0]}
+    result = {"coefficients": [{"name": "NC2-Z:x0", "value": 1.0, "curve": curve}],
+              "suggestions": [{"element": "NC2-Z", "argument": "displacement",
+                               "kind": "trilinear", "clearances": [1.5, 1.3],
+                               "values": [120.0, 100.0], "misfit": 0.0}],
+              "suggested_config": {"yaml": "nonlinearities:\n- {name: NC2-Z, kind: trilinear}\n"}}
+    page = html.unescape(render_report(result))
+    assert "clearances [1.5, 1.3]" in page
+    assert "['" not in page

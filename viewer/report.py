@@ -442,7 +442,8 @@ def restoring_force_html(result: Mapping[str, Any]) -> list[str]:
         return []
     rows = []
     for s in result.get("suggestions") or []:
-        pars = ", ".join(f"{k} {fmt_g(s[k]) if not isinstance(s[k], list) else [fmt_g(v) for v in s[k]]}"
+        pars = ", ".join(f"{k} " + (fmt_g(s[k]) if not isinstance(s[k], list)
+                                    else "[" + ", ".join(fmt_g(v) for v in s[k]) + "]")
                          for k in ("clearances", "clearance", "side", "exponent",
                                    "velocity_scale", "slip") if k in s)
         rows.append({"element": s.get("element"), "argument": s.get("argument"),
