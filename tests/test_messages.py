@@ -203,3 +203,17 @@ def test_report_writes_a_suggested_stop_without_list_reprs():
     page = html.unescape(render_report(result))
     assert "clearances [1.5, 1.3]" in page
     assert "['" not in page
+
+
+def test_replay_names_the_recorded_outputs_in_plain_text(tmp_path, capsys):
+    """``replay --ident`` with an output the experiment did not record (was "its output
+    channels: ['X1', 'X2', 'X3']")."""
+    rec = tmp_path / "lumped.mcap"
+    assert main(["acquire", "--config", "lumped", "--out", str(rec), "--quiet",
+                 "--no-info"]) == 0
+    capsys.readouterr()
+    cfg = tmp_path / "lo.yaml"
+    cfg.write_text("band_hz: [5, 50]\noutputs: [X1, X9]\n")
+    err = run_error(capsys, ["replay", str(rec), "--ident", str(cfg),
+                             "--rrd", str(tmp_path / "x.rrd")])
+    assert "(its output channels: X1, X2, X3)" in err
