@@ -217,3 +217,22 @@ def test_replay_names_the_recorded_outputs_in_plain_text(tmp_path, capsys):
     err = run_error(capsys, ["replay", str(rec), "--ident", str(cfg),
                              "--rrd", str(tmp_path / "x.rrd")])
     assert "(its output channels: X1, X2, X3)" in err
+
+
+def test_info_of_an_imported_record_says_what_it_does_not_declare(tmp_path, capsys):
+    """An imported CSV with its period but no transient periods: ``fnsi-lab info`` said
+    "declared 4, None transient"."""
+    import numpy as np
+
+    t = np.arange(4 * 256) / 1000.0
+    u = np.sin(2 * np.pi * 7.8125 * t)
+    src = tmp_path / "run.csv"
+    src.write_text("time [s],F1 [N],X1 [m]\n"
+                   + "".join(f"{a:.4f},{b:.6f},{0.1 * b:.6f}\n" for a, b in zip(t, u)))
+    rec = tmp_path / "run.mcap"
+    assert main(["import", str(src), "--out", str(rec), "--samples-per-period", "256"]) == 0
+    capsys.readouterr()
+    assert main(["info", str(rec)]) == 0
+    out = capsys.readouterr().out
+    assert "(declared 4, transient not declared)" in out
+    assert_plain(out)

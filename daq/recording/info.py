@@ -136,10 +136,13 @@ def format_info(info: dict[str, Any]) -> str:
                  f"{info['blocks']} blocks, {info['chunks']} chunks"
                  + (f", {info['lost_blocks']} LOST blocks" if info.get("lost_blocks") else ""))
     if info.get("samples_per_period"):
-        declared = info.get("periods_declared")
+        declared, transient = info.get("periods_declared"), info.get("transient_periods")
+        said = ", ".join([f"declared {declared}" if declared is not None
+                          else "number not declared",
+                          f"{transient} transient" if transient is not None
+                          else "transient not declared"])
         lines.append(f"periodic: N = {info['samples_per_period']}, {info['periods']} whole "
-                     f"periods per realization (declared {declared}, "
-                     f"{info.get('transient_periods')} transient), {info['realizations']} realization(s)")
+                     f"periods per realization ({said}), {info['realizations']} realization(s)")
     exc = info.get("excitation")
     if exc:
         band = exc.get("band_hz")
