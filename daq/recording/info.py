@@ -128,7 +128,7 @@ def format_info(info: dict[str, Any]) -> str:
     lines = [f"{info['file']}  ({_fmt_bytes(info['size_bytes'])}, written by {info.get('library', '?')})"]
     exp = info.get("experiment") or {}
     if exp.get("name") or exp.get("source_kind") or exp.get("source"):
-        lines.append(f"experiment: {exp.get('name', '?')}"
+        lines.append(f"experiment: {exp.get('name') or '?'}"
                      + (f", source {exp.get('source_kind') or exp.get('source')}" if
                         (exp.get('source_kind') or exp.get('source')) else ""))
     lines.append(f"data: {info['samples']} samples x {len(info['channels'])} channels @ "
@@ -184,7 +184,7 @@ def format_info(info: dict[str, Any]) -> str:
         truth = info["truth"]
         keys = ", ".join(sorted(truth)) if isinstance(truth, dict) else type(truth).__name__
         lines.append(f"truth: {keys}")
-    lines.append(f"metadata: {', '.join(info.get('metadata_keys') or [])}")
-    lines.append(f"fnsi-lab version: {info.get('software_version')}")
+    lines.append(f"metadata: {', '.join(info.get('metadata_keys') or []) or 'none'}")
+    lines.append(f"fnsi-lab version: {info.get('software_version') or 'not recorded'}")
     lines += [f"note: {note}" for note in info.get("notes") or ()]
     return "\n".join(lines)
