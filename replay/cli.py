@@ -84,7 +84,7 @@ def check_ident_channels(config: Any, channels: Any) -> None:
             if ch not in selected:
                 where = "identified outputs" if config.outputs else "experiment's outputs"
                 raise ConfigError(f"nonlinearity {nl.name!r}: channel {ch!r} is not among the "
-                                  f"{where} {selected}", file=file, field="nonlinearities",
+                                  f"{where} ({plain.names(selected)})", file=file, field="nonlinearities",
                                   fix="add it to outputs: or name recorded channels")
 
 

@@ -236,3 +236,18 @@ def test_info_of_an_imported_record_says_what_it_does_not_declare(tmp_path, caps
     out = capsys.readouterr().out
     assert "(declared 4, transient not declared)" in out
     assert_plain(out)
+
+
+def test_report_gives_the_identified_band_in_hz(chain, tmp_path, capsys):
+    """The HTML report's summary row of the band reads ``3-150 Hz`` (was ``[3.0, 150.0]``)."""
+    import html
+
+    cfg = write_config(tmp_path / "c.yaml")
+    res, page = tmp_path / "r.json", tmp_path / "r.html"
+    assert main(["ident", str(chain / "chain.npz"), "--config", str(cfg), "--order", "6",
+                 "--json", str(res), "--quiet"]) == 0
+    assert main(["report", str(res), "--out", str(page)]) == 0
+    text = html.unescape(page.read_text())
+    row = re.search(r"identification band hz</t[hd]><td>([^<]*)<", text)
+    assert row and row.group(1) == "3-150 Hz", row
+    assert_plain(re.sub(r"<(svg|script|style).*?</\1>", "", text, flags=re.S))

@@ -20,6 +20,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from fnsi_lab import plain
 from fnsi_lab.viewer.html import CSS, figure_html, fmt_g, html_table, kv_table, new_figure, svg
 
 #: Stabilisation classes in legend order -> (colour, marker, legend).
@@ -544,7 +545,8 @@ def metadata_rows(metadata: Mapping[str, Any] | None,
                     ("periods", ""), ("transient_periods", ""), ("realizations", ""),
                     ("sample_rate_hz", "")):
         if exc.get(k) is not None:
-            rows.append((f"excitation {k.replace('_', ' ')}", _with_unit(str(exc[k]), unit)))
+            text = plain.band_hz(exc[k]) if k == "band_hz" else plain.value(exc[k]).strip("'")
+            rows.append((f"excitation {k.replace('_', ' ')}", _with_unit(text, unit)))
     if exc.get("excited_lines") is not None:
         rows.append(("excited lines", str(len(exc["excited_lines"]))))
     truth = md.get("truth") or {}
@@ -554,11 +556,12 @@ def metadata_rows(metadata: Mapping[str, Any] | None,
     for k in ("input", "config", "band_hz", "n_lines", "n_excited_lines", "n_periods",
               "n_realizations", "output_quantity", "time_base"):
         if result.get(k) is not None:
-            rows.append((f"identification {k.replace('_', ' ')}", str(result[k])))
+            text = plain.band_hz(result[k]) if k == "band_hz" else plain.value(result[k]).strip("'")
+            rows.append((f"identification {k.replace('_', ' ')}", text))
     units = result.get("units") or {}
     if units.get("force"):
-        rows.append(("units", f"force {units['force']}, outputs {units.get('output')}, FRF "
-                              f"{units.get('frf')}" + (" (assumed SI: the input had no unit "
+        rows.append(("units", f"force {units['force']}, outputs {units.get('output') or '-'}, "
+                              f"FRF {units.get('frf') or '-'}" + (" (assumed SI: the input had no unit "
                                                        "table)" if units.get("assumed") else "")))
     total = (result.get("timings_s") or {}).get("total")
     if total is not None:

@@ -66,7 +66,7 @@ def read_uff58(path: str | os.PathLike[str]) -> LabTable:
     notes = []
     other = sorted({int(t) for t in types if int(t) != 58})
     if other:
-        notes.append(f"datasets {other} skipped (only dataset 58 time records are imported)")
+        notes.append(f"datasets {plain.names(other)} skipped (only dataset 58 time records are imported)")
     channels: list[LabChannel] = []
     columns: list[np.ndarray] = []
     rates: list[tuple[str, float]] = []

@@ -280,7 +280,7 @@ class CanSource(Source):
                             fix="e.g. bus_options: {fd: true, data_bitrate: 2000000}")
         clash = sorted(set(extra) & {"interface", "channel", "bitrate"})
         if clash:
-            raise sec.error("bus_options", f"{clash} belong in source.options itself",
+            raise sec.error("bus_options", f"{plain.names(clash)} belong in source.options itself",
                             fix="move them one level up")
         bus_kwargs.update(extra)
         dbc_path = resolve_dbc(sec.string("dbc"), config.file)

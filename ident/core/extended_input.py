@@ -12,6 +12,7 @@ from typing import Sequence
 
 import numpy as np
 
+from fnsi_lab import plain
 from fnsi_lab.ident.core.basis import Nonlinearity, coefficient_names, evaluate_basis
 from fnsi_lab.ident.core.frequency_data import BasisMotion, FrequencyData
 from fnsi_lab.ident.errors import IdentError
@@ -82,7 +83,8 @@ def with_basis(data: FrequencyData, basis: Sequence[Nonlinearity]) -> FrequencyD
     names = coefficient_names(basis)
     if np.any(rms_h == 0):
         dead = [n for n, v in zip(names, rms_h) if v == 0]
-        raise IdentError(f"basis functions {dead} are identically zero on these data "
+        raise IdentError(f"basis functions {plain.names(dead, quote=True)} are identically zero "
+                         "on these data "
                          "(clearance larger than the motion, or wrong channels)")
     sigma = np.concatenate([np.ones(m), motion.force_rms / rms_h])
     E = np.concatenate([data.E[:, :m], H * sigma[m:]], axis=1)
