@@ -236,6 +236,14 @@ def validate_model(result: Any, record: Any, *, method: str = "auto",
     elif decided_linear:
         notes.append(f"the nonlinear terms {plain.names(names, quote=True)} were not kept ({_rejection(nested)}); the "
                      "nonlinear model is simulated all the same")
+    elif not basis and nested.get("decision") == "linear":
+        # every configured element was left out before the fit (a parameter search, the
+        # localisation): the answer is a linear model, as the columns and a warning say
+        refused = [str(r.get("name")) for r in nested.get("refused") or [] if isinstance(r, Mapping)]
+        notes.append(f"the answer is a linear model (the configured nonlinear terms "
+                     f"{refused or 'of the result'} were left out: {_rejection(nested)}): the "
+                     "nonlinear model's error is the linear model's")
+        linear_answer = True
     if linear_answer:
         basis = ()
     if len(model.input_names) != model.n_inputs + sum(len(nl.coefficient_names) for nl in basis):
