@@ -12,7 +12,8 @@ shaker, accelerations at 500 Hz, 6000-sample periods. Real subprocess CLI runs o
 - 55 N RMS (the highest level: macro-slip, contact, wear): whatever the answer (Jenkins kept
   or left out), it predicts another level's record (20 N), which neither the fit nor the
   decision (``--validation`` on 35 N) read, no worse than the linear fit of the same data,
-  and ``validate`` gives the answer's error on every output.
+  and ``validate`` gives the answer's error on every output;
+- 3 N again: ``locate`` places nothing (there is no distortion to place).
 """
 
 from __future__ import annotations
@@ -85,3 +86,14 @@ def test_highest_level_never_worse_than_linear_fit_on_another_record(campaign: P
         # 20 N record's own non-periodic part can move it (its periods differ by < 1 %,
         # -40 dB, against errors of -1 to -12 dB of the output)
         assert o["error_db"] <= ref + 0.5, v["outputs"]
+
+
+def test_locate_places_nothing_where_the_joint_never_slips(campaign: Path):
+    # the joint never slips at 3 N: the structure is linear and the distortion analysis says
+    # so; the generic columns' F-test had "located" a pair chosen by the noise realisation
+    p = _cli(["locate", "indep-rms3.npz", "--config", "indep-linear.yaml", "--json",
+              "where3.json", "--quiet"], campaign)
+    assert p.returncode == 0, p.stderr
+    r = json.loads((campaign / "where3.json").read_text())
+    verdicts = [c["verdict"] for c in r["candidates"]]
+    assert "located" not in verdicts and "as likely as the best" not in verdicts, verdicts
