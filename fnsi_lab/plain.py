@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping
 from typing import Any
 
-__all__ = ["names", "band_hz", "number", "quantity", "value", "weights"]
+__all__ = ["names", "band_hz", "number", "quantity", "value", "weights", "shape"]
 
 
 def number(x: Any, digits: int = 4) -> str:
@@ -64,6 +64,14 @@ def band_hz(band: Any, digits: int = 4) -> str:
         return f"{number(low, digits)}-{number(high, digits)} Hz"
     except (TypeError, ValueError):
         return value(band)
+
+
+def shape(dims: Any) -> str:
+    """An array shape as ``11264 x 2`` (a 1-D one as ``11264 values``)."""
+    dims = tuple(int(d) for d in dims)
+    if len(dims) == 1:
+        return f"{dims[0]} values"
+    return " x ".join(map(str, dims)) or "a single value"
 
 
 def weights(mapping: Mapping[Any, Any]) -> str:

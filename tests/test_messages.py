@@ -107,6 +107,7 @@ def test_plain_helpers():
     assert plain.value({"wing": 1, "payload": -1}) == "{wing: 1, payload: -1}"
     assert plain.value(None) == "nothing"
     assert plain.weights({"wing": 1.0, "payload": -1.0}) == "wing +1, payload -1"
+    assert plain.shape((11264, 2)) == "11264 x 2"
 
 
 @pytest.mark.parametrize("old, new, expect", [
@@ -251,3 +252,15 @@ def test_report_gives_the_identified_band_in_hz(chain, tmp_path, capsys):
     row = re.search(r"identification band hz</t[hd]><td>([^<]*)<", text)
     assert row and row.group(1) == "3-150 Hz", row
     assert_plain(re.sub(r"<(svg|script|style).*?</\1>", "", text, flags=re.S))
+
+
+def test_array_file_of_mismatched_lengths_gives_sizes_not_tuples(tmp_path, capsys):
+    """u and y of different lengths in an array file: "u is 100 x 1 and y 90 x 2" (was
+    "u (100, 1) and y (90, 2)")."""
+    import numpy as np
+
+    src = tmp_path / "bad.npz"
+    np.savez(src, u=np.ones(100), y=np.ones((90, 2)), fs=100.0, N=10)
+    err = run_error(capsys, ["ident", str(src), "--order", "2"])
+    assert "u is 100 x 1 and y 90 x 2" in err
+    assert "(100, 1)" not in err

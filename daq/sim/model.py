@@ -17,6 +17,7 @@ from typing import Any, Mapping
 import numpy as np
 import scipy.linalg as sla
 
+from fnsi_lab import plain
 from fnsi_lab.daq.sim.nonlinear import NonlinearElement
 from fnsi_lab.errors import ConfigError
 
@@ -94,7 +95,7 @@ class StructuralModel:
         n = m.shape[0]
         for nm, a in (("mass", m), ("damping", c), ("stiffness", k)):
             if a.shape != (n, n):
-                raise ConfigError(f"{nm} matrix has shape {a.shape}, expected ({n}, {n})",
+                raise ConfigError(f"{nm} matrix is {plain.shape(a.shape)}, expected {n} x {n}",
                                   field=f"model.{nm}")
             if not np.allclose(a, a.T, rtol=1e-10, atol=1e-12 * max(1.0, np.abs(a).max())):
                 raise ConfigError(f"{nm} matrix is not symmetric", field=f"model.{nm}",

@@ -86,7 +86,7 @@ def _matrix(sec: Section, key: str, n: int | None) -> np.ndarray:
     except (TypeError, ValueError):
         raise sec.error(key, "expected a square list of lists of numbers") from None
     if a.ndim != 2 or a.shape[0] != a.shape[1] or (n is not None and a.shape[0] != n):
-        raise sec.error(key, f"expected a {n or 'n'} x {n or 'n'} matrix, got shape {a.shape}")
+        raise sec.error(key, f"expected a {n or 'n'} x {n or 'n'} matrix, got {plain.shape(a.shape)}")
     if not np.all(np.isfinite(a)):
         raise sec.error(key, "contains non-finite values")
     if not np.allclose(a, a.T, rtol=1e-10, atol=1e-12 * max(1.0, np.abs(a).max())):

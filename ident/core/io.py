@@ -135,8 +135,9 @@ def input_from_arrays(arrays: Mapping[str, Any], path: str = "",
     if y.ndim == 1:
         y = y[:, None]
     if u.shape[:-1] != y.shape[:-1]:
-        raise IdentDataError(f"{path}: u {u.shape} and y {y.shape} do not have the same number "
-                             "of samples (expected u (n_samples, n_inputs), y (n_samples, n_outputs))")
+        raise IdentDataError(f"{path}: u is {plain.shape(u.shape)} and y {plain.shape(y.shape)}: "
+                             "not the same number of samples (expected u samples x inputs, "
+                             "y samples x outputs)")
     try:
         if "realization_starts" in arrays:   # one long record, several realisations
             if N is None or u.ndim != 2:
