@@ -16,6 +16,7 @@ from typing import Any, Literal, Sequence
 
 import numpy as np
 
+from fnsi_lab import plain
 from fnsi_lab.ident.core.excitation import ExcitationGrid
 from fnsi_lab.ident.core.noise import noise_from_nonexcited, noise_lines
 from fnsi_lab.ident.errors import IdentError, IdentWarning
@@ -92,7 +93,7 @@ def cut_realizations(x: np.ndarray, starts: Sequence[int] | np.ndarray,
     N = int(samples_per_period)
     tr = int(transient_samples)
     if not s or any(b <= a for a, b in zip(s, s[1:])) or s[0] < 0 or s[-1] >= n:
-        raise IdentError(f"realization_starts {s} must be increasing sample indices inside the "
+        raise IdentError(f"realization_starts {plain.names(s, limit=8)} must be increasing sample indices inside the "
                          f"record of {n} samples")
     if tr < 0 or N < 1:
         raise IdentError("transient_samples must be >= 0 and N >= 1")
