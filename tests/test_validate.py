@@ -171,6 +171,7 @@ def test_unsupported_terms_validate_the_linear_fit(duffing_files, tmp_path):
     (row,) = val["outputs"]
     assert row["error_rms"] == row["linear_error_rms"] == row["linear_fit_error_rms"]
     assert any("were not kept" in w and "nonlinear_vs_linear" in w for w in val["warnings"])
+    assert not any("['" in w for w in val["warnings"])   # the terms named, not a list repr
     # --model nonlinear: the rejected nonlinear model all the same (here a good one)
     proc = _cli(["validate", "unsupported.json", str(duffing_files / "high.npz"), "--model",
                  "nonlinear", "--json", "vn.json"], tmp_path)
