@@ -59,9 +59,20 @@ exit codes: 0 success, 1 the work failed, 2 usage or input error, 130 interrupte
 """
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with its refusal of a bad choice in plain words: ``invalid choice: 'xyz'
+    (choose from auto, generic, jenkins)``, not the tuple-like list of reprs Python 3.11
+    writes. Subcommand parsers are of this class too (``add_subparsers`` inherits it)."""
+
+    def _check_value(self, action: argparse.Action, value: object) -> None:
+        if action.choices is not None and value not in action.choices:
+            raise argparse.ArgumentError(action, f"invalid choice: {value!r} (choose from "
+                                                 f"{', '.join(map(str, action.choices))})")
+
+
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     """The argument parser: every available subcommand, or only ``command``'s module's."""
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="fnsi-lab",
         description="Nonlinear structural identification in the test lab: multisine "
                     "acquisition to MCAP, frequency-domain nonlinear subspace identification "

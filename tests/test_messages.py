@@ -264,3 +264,18 @@ def test_array_file_of_mismatched_lengths_gives_sizes_not_tuples(tmp_path, capsy
     err = run_error(capsys, ["ident", str(src), "--order", "2"])
     assert "u is 100 x 1 and y 90 x 2" in err
     assert "(100, 1)" not in err
+
+
+@pytest.mark.parametrize("args, expect", [
+    (["locate", "x.npz", "--form", "xyz"], "invalid choice: 'xyz' (choose from auto, generic, jenkins)"),
+    (["identt"], "invalid choice: 'identt' (choose from acquire, info, "),
+])
+def test_a_bad_choice_lists_the_choices_plainly(capsys, args, expect):
+    """argparse's refusal of a choice (Python 3.11 wrote "(choose from 'auto', 'generic',
+    ...)"): the choices as words, exit 2."""
+    with pytest.raises(SystemExit) as exit_:
+        main(args)
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert expect in err
+    assert_plain(err)
