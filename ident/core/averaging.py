@@ -93,8 +93,8 @@ def cut_realizations(x: np.ndarray, starts: Sequence[int] | np.ndarray,
     N = int(samples_per_period)
     tr = int(transient_samples)
     if not s or any(b <= a for a, b in zip(s, s[1:])) or s[0] < 0 or s[-1] >= n:
-        raise IdentError(f"realization_starts {plain.names(s, limit=8)} must be increasing sample indices inside the "
-                         f"record of {n} samples")
+        raise IdentError(f"realization_starts {plain.names(s, limit=8)} must be increasing "
+                         f"sample indices inside the record of {n} samples")
     if tr < 0 or N < 1:
         raise IdentError("transient_samples must be >= 0 and N >= 1")
     ends = s[1:] + [n]

@@ -205,9 +205,10 @@ def _warn_zero_basis(data: FrequencyData, basis: Sequence[Nonlinearity]) -> None
     _, rms_h = basis_spectra(tuple(basis), data.motion)
     dead = [n for n, v in zip(coefficient_names(tuple(basis)), rms_h) if v == 0]
     if dead:
-        warnings.warn(f"basis functions {plain.names(dead, quote=True)} are identically zero on the record's measured "
-                      "motion (a clearance larger than the motion: no contact there); the "
-                      "model's own motion is simulated all the same", IdentWarning,
+        warnings.warn(f"basis functions {plain.names(dead, quote=True)} are identically zero "
+                      "on the record's measured motion (a clearance larger than the motion: no "
+                      "contact there); the model's own motion is simulated all the same",
+                      IdentWarning,
                       stacklevel=3)
 
 
