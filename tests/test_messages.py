@@ -279,3 +279,11 @@ def test_a_bad_choice_lists_the_choices_plainly(capsys, args, expect):
     err = capsys.readouterr().err.strip().splitlines()[-1]
     assert expect in err
     assert_plain(err)
+
+
+def test_one_used_period_is_named_once(chain, tmp_path, capsys):
+    """Two periods, one of them transient: "period 2 of 2 used" (was "periods 2-2 of 2")."""
+    cfg = write_config(tmp_path / "c.yaml")
+    assert main(["ident", str(chain / "chain.npz"), "--config", str(cfg), "--order", "4"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("periods: period 2 of 2 used; 1 configured as transient"), out[:200]
