@@ -179,9 +179,15 @@ def _estimate(u: Unknown, value: float, points: np.ndarray, objective: np.ndarra
         raise NotIdentifiableError(
             f"nonlinearity {u.name!r}: the data cannot tell {u.parameter}: the information "
             f"criterion is smallest at the top of the search interval [{lo:.4g}, {hi:.4g}], "
-            + ("where the joint barely slips (a linear spring: the underlying linear model "
-               "holds it)" if slip else "where the stop is barely touched")
-            + "; excite harder, or drop the element", element=u.name)
+            + ("where the element barely slips on the record's motion: no slip explains the "
+               "data better than a linear spring, which the underlying linear model holds. "
+               "Either the joint barely slips at this level (excite harder), or it slips in "
+               "a way one Jenkins element does not draw (distributed micro-slip, a clearance, "
+               "a drift between periods: fnsi-lab analyse tells whether the record is "
+               "nonlinear; kind: spline shows the force, docs/discovery.md); or drop the "
+               "element" if slip else
+               "where the stop is barely touched; excite harder, or drop the element"),
+            element=u.name)
     if value <= lo * np.sqrt(step):
         raise NotIdentifiableError(
             f"nonlinearity {u.name!r}: the data cannot tell {u.parameter}: the information "
