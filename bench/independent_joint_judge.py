@@ -4,8 +4,11 @@ Runs, as an outside user would (subprocesses of ``fnsi-lab``), for every level `
 
 - ``ident L --config indep-linear.yaml --auto``: the linear fit's modes against the truth;
 - for each nonlinear config (Jenkins ``slip: auto``, cubic, Coulomb on the joint's relative
-  motion): ``ident L --config C --auto --validation NEXT`` (the decision reads ``NEXT``),
-  then ``validate RESULT THIRD`` on a record neither the fit nor the decision read;
+  motion): ``ident L --config C --auto --validation NEXT`` (the decision reads ``NEXT``: the
+  next level up, or down with ``--direction down``), then ``validate RESULT THIRD`` on a
+  record neither the fit nor the decision read;
+- with ``--matrix``: every kept answer validated on every level's record (the answer minus
+  the linear fit, dB per output: negative is better).
 
 and prints a markdown table: decision, order, modes matched to the truth (joint stuck and
 joint free), coefficient verdicts, and the validation error (dB below the output) of the
@@ -15,6 +18,7 @@ Run::
 
     python bench/independent_joint.py --out indep
     python bench/independent_joint_judge.py --dir indep [--configs jenkins cubic coulomb]
+    python bench/independent_joint_judge.py --dir indep --configs jenkins --direction down --matrix
 """
 
 from __future__ import annotations
@@ -76,12 +80,21 @@ def level_files(folder: Path) -> list[tuple[float, Path]]:
     return [(float(p.stem[9:]), p) for p in files]
 
 
-def judge(folder: Path, configs: tuple[str, ...]) -> list[dict]:
+def neighbours(i: int, n: int, direction: str) -> tuple[int, int]:
+    """Indices of the decision's record (the next level up or down; at the end of the
+    campaign the other way) and of a third record, read by neither fit nor decision."""
+    step = 1 if direction == "up" else -1
+    nxt = i + step if 0 <= i + step < n else i - step
+    third = i - step if 0 <= i - step < n and i - step != nxt else nxt + (nxt - i)
+    return nxt, third
+
+
+def judge(folder: Path, configs: tuple[str, ...], direction: str = "up") -> list[dict]:
     levels = level_files(folder)
     rows = []
     for i, (level, path) in enumerate(levels):
-        nxt = levels[i + 1][1] if i + 1 < len(levels) else levels[i - 1][1]
-        third = levels[i - 1][1] if 0 < i < len(levels) - 1 else levels[2 if i == 0 else i - 2][1]
+        inxt, ithird = neighbours(i, len(levels), direction)
+        nxt, third = levels[inxt][1], levels[ithird][1]
         tr = json.loads(path.with_suffix(".truth.json").read_text())
         band = tuple(tr["band_hz"])
         code, out, sec = run(["ident", path.name, "--config", "indep-linear.yaml", "--auto",
@@ -135,6 +148,35 @@ def judge(folder: Path, configs: tuple[str, ...]) -> list[dict]:
     return rows
 
 
+def matrix(folder: Path, rows: list[dict], config: str) -> list[str]:
+    """Every nonlinear answer of ``config`` validated on every level: answer - linear fit (dB)."""
+    levels = level_files(folder)
+    lines = ["| answer of | " + " | ".join(f"on {lv:g} N" for lv, _ in levels) + " |",
+             "|---|" + "---|" * len(levels)]
+    for r in rows:
+        e = r.get(config, {})
+        if e.get("decision") != "nonlinear":
+            continue
+        cells = []
+        for lv, p in levels:
+            out = f"x-{config}-{r['level']:g}-on-{lv:g}.json"
+            code, _, _ = run(["validate", f"{config}-{r['level']:g}.json", p.name, "--json", out,
+                              "--force", "--quiet"], folder)
+            if code not in (0, 1) or not (folder / out).exists():
+                cells.append(f"exit {code}")
+                continue
+            v = json.loads((folder / out).read_text())
+            diff = []
+            for o in v["outputs"]:
+                ref = o.get("linear_fit_error_db")
+                ref = o["linear_error_db"] if ref is None else ref
+                diff.append("none" if o["error_db"] is None else f"{o['error_db'] - ref:+.1f}")
+            cells.append(" / ".join(diff))
+        lines.append(f"| {r['level']:g} N (checked on {e['validation_record'][9:-4]} N) | "
+                     + " | ".join(cells) + " |")
+    return lines
+
+
 def markdown(rows: list[dict], configs: tuple[str, ...]) -> str:
     out = ["| level (N) | regime | linear --auto: order, modes vs stuck truth (%) | "
            + " | ".join(f"{c}: decision, order, verdicts, modes vs stuck / free | {c}: "
@@ -171,12 +213,20 @@ def main(argv: list[str] | None = None) -> int:
                                 epilog="example: python bench/independent_joint_judge.py --dir indep")
     p.add_argument("--dir", type=Path, required=True, help="folder of bench/independent_joint.py")
     p.add_argument("--configs", nargs="+", default=list(CONFIGS), choices=CONFIGS)
+    p.add_argument("--direction", choices=("up", "down"), default="up",
+                   help="--validation on the next level up (default) or down")
+    p.add_argument("--matrix", action="store_true",
+                   help="validate every nonlinear answer on every level's record too")
     p.add_argument("--json", type=Path, help="write the rows here")
     args = p.parse_args(argv)
-    rows = judge(args.dir, tuple(args.configs))
+    rows = judge(args.dir, tuple(args.configs), args.direction)
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))
     print(markdown(rows, tuple(args.configs)))
+    if args.matrix:
+        for cfg in args.configs:
+            print(f"\n{cfg}: answer minus linear fit (dB, drive / bracket / box) on every record")
+            print("\n".join(matrix(args.dir, rows, cfg)))
     return 0
 
 
