@@ -164,7 +164,7 @@ def trend_panels(report: Any, outputs: Sequence[str]) -> list[Panel]:
         p1.series.append(Series(_key(r["name"]), r["name"], x, y, _level_colour(i, len(rows)),
                                 width=1.5, values={"input_rms": x, "relative_db": y}))
     shifts = [np.array([np.nan if v is None else v for v in row["frequency_hz"]])
-              for row in lv["resonances"]]
+              for row in lv["resonances"] + lv.get("resonances_appearing", [])]
     p2 = Panel("resonances", "resonance frequencies (Hz) against level", fx,
                Axis.fit("frequency (Hz)", *shifts))
     for i, y in enumerate(shifts):
@@ -323,12 +323,20 @@ def distortion_section(report: Any, outputs: Sequence[str] | None = None) -> str
                                       f"BLA of {name} at every level",
                                       f"fig-bla-{_key(name)}"))
         rows = []
-        for i, row in enumerate(report.levels["resonances"]):
+        levels = report.levels
+        for i, row in enumerate(levels["resonances"] + levels.get("resonances_appearing", [])):
             rows.append({"resonance": i + 1, "frequency (Hz)": _list(row["frequency_hz"], 5),
                          "shift (%)": _list(row["shift_percent"], 3),
                          "damping (%)": _list([None if z is None else 100 * z
-                                               for z in row["damping_ratio"]], 3)})
+                                               for z in row["damping_ratio"]], 3),
+                         "shape (MAC)": _list(row.get("mac", []), 2)})
         parts.append(html_table(rows))
+        parts.append("<p>Each row is one resonance, one entry per level (- where it was not "
+                     "found): followed from level to level where its frequency is the nearest "
+                     "and its operating deflection shape agrees with its previous sighting "
+                     "(MAC, 1 = the same shape, at least 0.8). Rows that start with - are "
+                     "resonances first seen at a higher level; their shift is against that "
+                     "level.</p>")
     return "\n".join(parts)
 
 
