@@ -154,10 +154,14 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
                else "compare_linear: false skips the nested test and its simulation check"))
     if session.config.nonlinearities and compare:
         verdicts = [c.get("verdict") for c in coefficient_summaries(spectra, session)]
+        answer = Fit(model, fit.method, fit.auto, fit.decomposition)
         if (compare == "auto" and validation is None and verdicts
-                and all(v == "identified" for v in verdicts)):
+                and all(v == "identified" for v in verdicts)
+                and answer_modes(answer, output_error)):
             # every coefficient determined: the test would only confirm it (chain, SmallSat,
-            # Silverbox); it costs a second identification (docs/ident.md)
+            # Silverbox); it costs a second identification (docs/ident.md). Not for an answer
+            # without a physical mode: a degenerate order can make any coefficient look
+            # determined (GVT at 26 N, another realisation: order 1, no mode, "identified")
             from fnsi_lab.ident.robust.nested import weighted_residual
 
             session.evidence["nonlinear_vs_linear"] = {
@@ -169,7 +173,6 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
                              "(compare_linear: true runs it)"}
         else:
             t3 = time.perf_counter()
-            answer = Fit(model, fit.method, fit.auto, fit.decomposition)
             nested = compare_with_linear(
                 session, model, answer_modes(answer, output_error),
                 [c["verdict"] for c in coefficient_summaries(spectra, session)], order=order,

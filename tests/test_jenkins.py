@@ -492,3 +492,20 @@ def test_the_model_before_the_reduction_when_the_reduced_one_fails(tmp_path):
     val = fnsi_lab.validate_model(res, gvt / "aircraft-rms69.mcap").to_json()
     for out in val["outputs"]:
         assert out["error_db"] < out["linear_fit_error_db"] - 3.0, out
+
+
+def test_an_answer_without_a_mode_is_tested_against_the_linear_fit(tmp_path):
+    """The GVT joint at 26 N (barely slipping) with another multisine realisation: the
+    slip search lands on the criterion's flat top, the order selection on order 3 and the
+    reduction on order 1, a model with no mode whose coefficient spectrum is flat enough to
+    be called `identified`. Every coefficient identified used to skip the nested test; an
+    answer without a physical mode no longer does, and the linear fit (9 modes of the
+    stuck structure at order 21) answers."""
+    import fnsi_lab
+
+    gvt = _campaign(tmp_path, "26", phase_seed=21)
+    doc = fnsi_lab.identify(str(gvt / "aircraft-rms26.mcap"),
+                            config=str(gvt / "aircraft-jenkins.yaml")).to_json()
+    nvl = doc["nonlinear_vs_linear"]
+    assert nvl["decision"] == "linear" and nvl["test"] is not None, nvl["statement"]
+    assert len(doc["modes"]) >= 6
