@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import replace
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 from fnsi_lab.ident.coefficient_summaries import (coefficient_summaries,
                                                   session_coefficient_spectra)
@@ -91,7 +91,8 @@ def identify_input(inp: IdentInput, cfg: IdentConfig, *, order: int | None = Non
 
 def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = None,
                      spent_s: Mapping[str, float] | None = None,
-                     validation: IdentInput | None = None) -> Identification:
+                     validation: IdentInput | None = None,
+                     left_out: Sequence[dict] = ()) -> Identification:
     """Identify with resolved settings (:func:`ident.request.resolve_request`).
 
     Parameters
@@ -110,6 +111,9 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
         nested test's simulation check predicts it instead of the identified record
         (:func:`ident.linear_comparison.simulated_against_linear`), and runs even where
         every coefficient is identified.
+    left_out : sequence of dict
+        Elements an earlier pass left out because none of their coefficients is determined
+        (:func:`_without_undetermined`), reported with the answer.
 
     Returns
     -------
@@ -138,6 +142,8 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
                 "localisation", "nonlinearities: auto located no element whose nonlinear force "
                 "explains the distortion beyond the noise (localisation: the candidates and "
                 "why): the answer is the linear fit")
+    if left_out:
+        _report_left_out(session, left_out)
     fit = fit_session(session, order=order, sweep=sweep, reduce_at=reduce_at,
                       max_order=max_order, block_rows=block_rows, progress=progress)
     output_error = refine(session, fit)
@@ -145,6 +151,16 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
     t2 = time.perf_counter()
     spectra = session_coefficient_spectra(session, model)
     session.timings_s["coefficients"] = time.perf_counter() - t2
+    undetermined = _undetermined_elements(session, spectra)
+    if undetermined:   # identified again without them (docs/ident.md)
+        spent = {**(spent_s or {}), "left_out_pass": time.perf_counter() - t0}
+        return identify_request(
+            inp, replace(request, config=replace(
+                session.config, nonlinearities=tuple(
+                    nl for nl in session.config.nonlinearities
+                    if nl.name not in {u["name"] for u in undetermined}))),
+            progress=progress, spent_s=spent, validation=validation,
+            left_out=[*left_out, *undetermined])
     compare = session.config.compare_linear
     nested = None
     if validation is not None and not (session.config.nonlinearities and compare):
@@ -224,4 +240,48 @@ def _before_the_reduction(session: IdentSession, fit: Fit, nested: NestedTest,
            "against the linear fit, the model it came from did")
     return (full._replace(auto=replace(full_auto, final_reason=why,
                                        reduced_statement=nested.statement)), spectra, test)
+
+
+def _undetermined_elements(session: IdentSession, spectra: CoefficientSpectra | None
+                           ) -> list[dict]:
+    """The elements to leave out: those none of whose coefficients the data determine
+    (every verdict ``not identifiable``) while another element's are determined, as
+    ``{name, kind, channels, parameters, reason}`` (the keys of
+    ``nonlinear_vs_linear.refused``); empty otherwise.
+
+    Why: a term whose coefficient the data cannot tell still moves the others and the
+    model's simulation (aircraft-like GVT, Jenkins element and stop at 40 N, another
+    realisation: the stop's contact stiffnesses -9.5e4 and -1.4e4 N/m, both `not
+    identifiable`, and the model then had no steady state on the next level's record).
+    Left out, the model is the one the data support, as a basis parameter the data cannot
+    tell leaves its element out (docs/ident.md, "When the data cannot tell").
+    """
+    basis = session.config.nonlinearities
+    if len(basis) < 2:
+        return []
+    rows = {c["name"]: c for c in coefficient_summaries(spectra, session)}
+    verdicts = {nl.name: [rows[n].get("verdict") for n in nl.coefficient_names if n in rows]
+                for nl in basis}
+    none = [nl for nl in basis
+            if verdicts[nl.name] and all(v == "not identifiable" for v in verdicts[nl.name])]
+    if not none or len(none) == len(basis):
+        return []
+    return [{"name": nl.name, "kind": nl.kind, "channels": dict(nl.channels),
+             "parameters": [],
+             "reason": f"nonlinearity {nl.name!r}: no coefficient determined by the data ("
+                       + "; ".join(f"{n}: {rows[n].get('verdict_reason')}"
+                                   for n in nl.coefficient_names if n in rows) + ")"}
+            for nl in none]
+
+
+def _report_left_out(session: IdentSession, left_out: Sequence[dict]) -> None:
+    """Say, in the warnings and in ``nonlinear_vs_linear.refused``, which elements an
+    earlier pass left out and why."""
+    names = ", ".join(repr(e["name"]) for e in left_out)
+    kept = ", ".join(repr(nl.name) for nl in session.config.nonlinearities)
+    session.warnings.append(f"{names} left out: none of its coefficients is determined by "
+                            f"the data (identified again with {kept}; "
+                            "nonlinear_vs_linear.refused says why)")
+    evidence = session.evidence.setdefault("nonlinear_vs_linear", {})
+    evidence["refused"] = [*evidence.get("refused", []), *left_out]
 

@@ -509,3 +509,22 @@ def test_an_answer_without_a_mode_is_tested_against_the_linear_fit(tmp_path):
     nvl = doc["nonlinear_vs_linear"]
     assert nvl["decision"] == "linear" and nvl["test"] is not None, nvl["statement"]
     assert len(doc["modes"]) >= 6
+
+
+def test_an_element_whose_coefficients_are_undetermined_is_left_out(tmp_path):
+    """The GVT joint at 40 N, realisation 12, as a Jenkins element and a stop: the stop is
+    barely touched and its two contact stiffnesses come out negative and `not
+    identifiable`, while the Jenkins element's is determined. That model had no steady
+    state on the 55 N record. The stop is now left out and the identification run again
+    with the Jenkins element alone (its slip as found); the answer says so."""
+    import fnsi_lab
+
+    gvt = _campaign(tmp_path, "40", phase_seed=12)
+    doc = fnsi_lab.identify(str(gvt / "aircraft-rms40.mcap"),
+                            config=str(gvt / "aircraft-jenkins-stop.yaml")).to_json()
+    assert [nl["name"] for nl in doc["nonlinearities"]] == ["joint"]
+    assert doc["nonlinearities"][0]["slip"] > 0        # found once, not searched again
+    (refused,) = doc["nonlinear_vs_linear"]["refused"]
+    assert refused["name"] == "gap" and "no coefficient determined" in refused["reason"]
+    assert any("'gap' left out" in w for w in doc["warnings"])
+    assert all(c["name"] == "joint" for c in doc["coefficients"])
