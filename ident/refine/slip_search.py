@@ -104,8 +104,8 @@ def estimate_slips(data: FrequencyData, basis: Sequence[Nonlinearity], *, max_or
     # barely touched); slips first. From the middle, a stop in contact most of the time is
     # nearly a copy of the motion and its column drove the scans to the interval ends
     # (GVT, 98 N)
-    values = np.array([np.sqrt(u.bounds[0] * u.bounds[1]) if u.parameter == "slip"
-                       else u.bounds[1] for u in unknowns])
+    values = _starts(unknowns, basis)
+    twins = _same_motion_slips(unknowns, basis)
     sweep = sorted(range(len(unknowns)), key=lambda k: unknowns[k].parameter != "slip")
     m_e = data.n_inputs + sum(len(nl.coefficient_names) for nl in basis)
     rows = search_block_rows(data.n_outputs, int(max_order), data.n_lines, m_e)
@@ -113,6 +113,8 @@ def estimate_slips(data: FrequencyData, basis: Sequence[Nonlinearity], *, max_or
 
     def criterion(vals: np.ndarray) -> tuple[int, float]:
         key = tuple(np.round(np.log(vals), 12))
+        if any(abs(key[a] - key[b]) < 1e-9 for a, b in twins):
+            return 0, np.inf   # two elements of one slip on one motion: the same column twice
         if key not in memo:
             memo[key] = order_by_information_criterion(
                 data, resolve_basis(basis, unknowns, vals), int(max_order), block_rows=rows,
@@ -139,6 +141,33 @@ def estimate_slips(data: FrequencyData, basis: Sequence[Nonlinearity], *, max_or
                                  [], float("nan"), [])
 
 
+def _same_motion_slips(unknowns: Sequence[Unknown], basis: Sequence[Nonlinearity]
+                       ) -> list[tuple[int, int]]:
+    """Pairs of slip unknowns whose Jenkins elements read the same relative motion."""
+    slips = [k for k, u in enumerate(unknowns) if u.parameter == "slip"]
+    motion = {k: tuple(sorted(basis[unknowns[k].element].channels.items())) for k in slips}
+    return [(a, b) for i, a in enumerate(slips) for b in slips[i + 1:] if motion[a] == motion[b]]
+
+
+def _starts(unknowns: Sequence[Unknown], basis: Sequence[Nonlinearity]) -> np.ndarray:
+    """Where the sweeps start: slips in the middle of their interval (log scale), stops open
+    (their clearances at the top). Several Jenkins elements on one motion (a distributed
+    joint: micro-slip, an Iwan element) start spread over the interval, the j-th of n at the
+    (j + 1) / (n + 1) point: all in the middle, their columns were equal, every fit singular
+    and the order sweep unstable at every order (bench/RESULTS_independent.md)."""
+    values = np.array([np.sqrt(u.bounds[0] * u.bounds[1]) if u.parameter == "slip"
+                       else u.bounds[1] for u in unknowns])
+    groups: dict[tuple, list[int]] = {}
+    for k, u in enumerate(unknowns):
+        if u.parameter == "slip":
+            groups.setdefault(tuple(sorted(basis[u.element].channels.items())), []).append(k)
+    for members in groups.values():
+        for j, k in enumerate(members if len(members) > 1 else []):
+            lo, hi = unknowns[k].bounds
+            values[k] = lo * (hi / lo) ** ((j + 1) / (len(members) + 1))
+    return values
+
+
 def _with(values: np.ndarray, k: int, v: float) -> np.ndarray:
     out = values.copy()
     out[k] = v
@@ -158,6 +187,8 @@ def _parabola_minimum(grid: np.ndarray, ic: np.ndarray,
         return float(grid[b]), None
     x = np.log(grid[b - 1:b + 2])
     y = ic[b - 1:b + 2]
+    if not np.all(np.isfinite(y)):   # a neighbour without an opinion: no parabola
+        return float(grid[b]), None
     denom = (x[0] - x[1]) * (x[0] - x[2]) * (x[1] - x[2])
     a = (x[2] * (y[1] - y[0]) + x[1] * (y[0] - y[2]) + x[0] * (y[2] - y[1])) / denom
     if not a > 0:
