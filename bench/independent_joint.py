@@ -28,6 +28,7 @@ Run::
 
     python bench/independent_joint.py --out indep            # 5 levels, ~2 s each
     python bench/independent_joint.py --out indep --levels 3 40 --force
+    python bench/independent_joint.py --out gvt --preset gvt   # the GVT's 400 Hz, 9 x 8192, 2-15 Hz
 
 Writes per level ``indep-rms<L>.npz`` (the array format of docs/ident.md: ``u``, ``y``,
 ``fs``, ``N``, ``channels``, ``input_channels``, ``quantity``) and ``indep-rms<L>.truth.json``
@@ -63,6 +64,17 @@ BAND_HZ = (2.0, 22.0)
 DEFAULT_LEVELS = (3.0, 6.0, 10.0, 20.0, 35.0, 55.0)
 #: Output names: structure DOF index of each accelerometer.
 OUTPUTS = {"drive": 0, "bracket": 2, "box": 3}
+
+
+@dataclass(frozen=True)
+class TestSetup:
+    """The acquisition: sample rate (Hz), samples per period, periods (the first from rest),
+    excited band (Hz, every line of the grid)."""
+
+    sample_rate_hz: float = SAMPLE_RATE_HZ
+    samples_per_period: int = SAMPLES_PER_PERIOD
+    n_periods: int = N_PERIODS
+    band_hz: tuple = BAND_HZ
 
 
 @dataclass(frozen=True)
@@ -275,8 +287,7 @@ def multisine(rms: float, seed: int, n: int, fs: float, band_hz: tuple,
 
 
 def simulate(level_n_rms: float, seed: int, st: Structure = Structure(), lab: Lab = Lab(),
-             n_periods: int = N_PERIODS, samples_per_period: int = SAMPLES_PER_PERIOD,
-             noise_seed: int | None = None) -> dict:
+             setup: TestSetup = TestSetup(), noise_seed: int | None = None) -> dict:
     """Simulate one level; returns the record's arrays and the run's truth.
 
     Returns
@@ -285,10 +296,10 @@ def simulate(level_n_rms: float, seed: int, st: Structure = Structure(), lab: La
     (m/s^2), ``lines`` the excited bins and ``run`` (slip, friction energy, contact, period
     differences, measured force RMS, regime).
     """
-    fs_sim = SAMPLE_RATE_HZ * OVERSAMPLE
-    dt = 1.0 / fs_sim
-    period, lines = multisine(level_n_rms, seed, samples_per_period, SAMPLE_RATE_HZ, BAND_HZ,
-                              OVERSAMPLE)
+    n_periods, samples_per_period = setup.n_periods, setup.samples_per_period
+    dt = 1.0 / (setup.sample_rate_hz * OVERSAMPLE)
+    period, lines = multisine(level_n_rms, seed, samples_per_period, setup.sample_rate_hz,
+                              setup.band_hz, OVERSAMPLE)
     e = np.tile(period, n_periods)
     a, b_e, b_g = _full_system(st)
     b = np.column_stack([b_e, b_g])
@@ -334,10 +345,10 @@ def simulate(level_n_rms: float, seed: int, st: Structure = Structure(), lab: La
     return {"u": rec[:, :1], "y": rec[:, 1:], "lines": lines, "run": run}
 
 
-def truth(st: Structure = Structure()) -> dict:
+def truth(st: Structure = Structure(), setup: TestSetup = TestSetup()) -> dict:
     """The underlying linear structure with the joint stuck and free, and the joint law."""
     m, c, k_stuck, k_free = structure_matrices(st)
-    band = [f for f in BAND_HZ]
+    band = [float(f) for f in setup.band_hz]
     return {
         "simulator": "bench/independent_joint.py (independent of daq/sim)",
         "modes_joint_stuck": modes(m, c, k_stuck),
@@ -355,7 +366,7 @@ def truth(st: Structure = Structure()) -> dict:
 
 
 _COMMON = """\
-band_hz: [2, 22]
+band_hz: [LOW, HIGH]
 transient_periods: 1
 output_quantity: acceleration
 inputs:
@@ -389,18 +400,30 @@ nonlinearities:
 }
 
 
-def write_level(out: Path, level: float, seed: int, *, force: bool = False) -> Path:
+#: ``--preset gvt``: the acquisition of the aircraft GVT (400 Hz, 9 periods of 8192, 2-15
+#: Hz) on this structure with 2.2x the masses (modes 2.2-13.6 Hz with the joint stuck).
+PRESETS = {
+    "default": (Structure(), TestSetup()),
+    "gvt": (Structure(mass_kg=tuple(2.2 * m for m in Structure().mass_kg)),
+            TestSetup(sample_rate_hz=400.0, samples_per_period=8192, n_periods=9,
+                      band_hz=(2.0, 15.0))),
+}
+
+
+def write_level(out: Path, level: float, seed: int, *, force: bool = False,
+                preset: str = "default") -> Path:
     """Simulate one level and write ``indep-rms<L>.npz`` and its truth JSON."""
+    st, setup = PRESETS[preset]
     path = out / f"indep-rms{level:g}.npz"
     if path.exists() and not force:
         print(f"{path} exists: kept (--force replaces it)", file=sys.stderr)
         return path
-    sim = simulate(level, seed)
-    np.savez(path, u=sim["u"], y=sim["y"], fs=SAMPLE_RATE_HZ, N=SAMPLES_PER_PERIOD,
+    sim = simulate(level, seed, st=st, setup=setup)
+    np.savez(path, u=sim["u"], y=sim["y"], fs=setup.sample_rate_hz, N=setup.samples_per_period,
              channels=np.array(list(OUTPUTS)), input_channels=np.array(["F-shaker"]),
              quantity="acceleration")
-    t = truth()
-    t["run"] = {**sim["run"], "phase_seed": seed}
+    t = truth(st, setup)
+    t["run"] = {**sim["run"], "phase_seed": seed, "preset": preset}
     path.with_suffix(".truth.json").write_text(json.dumps(t, indent=2))
     return path
 
@@ -413,11 +436,16 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--levels", type=float, nargs="+", default=list(DEFAULT_LEVELS),
                    help="commanded force RMS (N) of each level")
     p.add_argument("--phase-seed", type=int, default=100, help="seed of the first level's phases")
+    p.add_argument("--preset", choices=sorted(PRESETS), default="default",
+                   help="gvt: the aircraft GVT's acquisition (400 Hz, 9 x 8192, 2-15 Hz) on "
+                        "this structure with 2.2x the masses")
     p.add_argument("--force", action="store_true", help="replace existing files")
     args = p.parse_args(argv)
+    band = PRESETS[args.preset][1].band_hz
     args.out.mkdir(parents=True, exist_ok=True)
     for i, level in enumerate(args.levels):
-        path = write_level(args.out, level, args.phase_seed + i, force=args.force)
+        path = write_level(args.out, level, args.phase_seed + i, force=args.force,
+                           preset=args.preset)
         run = json.loads(path.with_suffix(".truth.json").read_text())["run"]
         print(f"{path}: {run['regime']}, measured {run['measured_force_rms_n']:.2f} N RMS, "
               f"slip {sum(run['slip_m_per_period']):.2e} m, contact {run['contact_fraction']:.2%}, "
@@ -426,7 +454,8 @@ def main(argv: list[str] | None = None) -> int:
     for name, body in CONFIGS.items():
         path = args.out / name
         if not path.exists() or args.force:
-            path.write_text(f"# Independent joint test (bench/independent_joint.py)\n{_COMMON}{body}")
+            common = _COMMON.replace("LOW", f"{band[0]:g}").replace("HIGH", f"{band[1]:g}")
+            path.write_text(f"# Independent joint test (bench/independent_joint.py)\n{common}{body}")
     return 0
 
 
