@@ -16,6 +16,7 @@ from typing import Sequence
 
 import numpy as np
 
+from fnsi_lab import plain
 from fnsi_lab.ident.config import IdentConfig
 from fnsi_lab.ident.core.distortion import (DEFAULT_ALPHA, RecordAnalysis, analyse_arrays,
                                        compare_levels)
@@ -65,7 +66,7 @@ def _input_channel(inp: IdentInput, cfg: IdentConfig | None) -> str:
     driven = [n for n, pw in zip(names, power) if pw > 1e-6 * power.max()]
     if len(driven) == 1:
         return driven[0]
-    raise IdentDataError(f"{inp.path}: {len(names)} input channels {list(names)}: the analysis "
+    raise IdentDataError(f"{inp.path}: {len(names)} input channels ({plain.names(names)}): the analysis "
                          "takes one; name it in the config, e.g. 'inputs: [{name: "
                          f"{names[0]}}}]'")
 

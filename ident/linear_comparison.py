@@ -12,6 +12,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from fnsi_lab import plain
 from fnsi_lab.ident.core.fnsi import StateSpaceModel
 from fnsi_lab.ident.core.io import IdentInput
 from fnsi_lab.ident.core.periodic import FrequencyData, prepare_frequency_data, with_basis
@@ -199,8 +200,8 @@ def validation_input(record: IdentInput, output_names: Sequence[str] | None,
                               inputs=list(input_names or []) or None)
     except IdentError as exc:
         raise IdentDataError(f"{exc} (the validation record needs the identified outputs "
-                             f"{list(output_names or [])} and forces "
-                             f"{list(input_names or [])})") from None
+                             f"{plain.names(output_names or [])} and forces "
+                             f"{plain.names(input_names or [])})") from None
     if abs(out.sample_rate_hz - sample_rate_hz) > 1e-9 * sample_rate_hz:
         raise IdentDataError(f"{name}: sampled at {out.sample_rate_hz:g} Hz but the identified "
                              f"record at {sample_rate_hz:g} Hz (fix: validate on a record of "
@@ -217,7 +218,7 @@ def validation_input(record: IdentInput, output_names: Sequence[str] | None,
     periods = int(np.asarray(out.u).shape[1])
     if periods - int(skip or 0) < 1:
         raise IdentDataError(f"{name}: {periods} period(s) of {out.samples_per_period} samples "
-                             f"and {skip} transient: none left to predict (fix: give the file "
+                             f"and {int(skip or 0)} transient: none left to predict (fix: give the file "
                              "its period N, or a record with more periods)")
     return out
 

@@ -287,3 +287,18 @@ def test_one_used_period_is_named_once(chain, tmp_path, capsys):
     assert main(["ident", str(chain / "chain.npz"), "--config", str(cfg), "--order", "4"]) == 0
     out = capsys.readouterr().out
     assert out.startswith("periods: period 2 of 2 used; 1 configured as transient"), out[:200]
+
+
+def test_validation_record_with_other_channels(chain, tmp_path, capsys):
+    """``ident A --validation B`` where B lacks the identified outputs: the fix names the
+    outputs and forces it needs as names (it printed ``['X1', 'X2', 'X3']``)."""
+    import numpy as np
+
+    with np.load(chain / "chain.npz") as f:
+        arrays = {k: f[k] for k in f.files}
+    arrays["channels"] = np.array(["A1", "A2", "A3"])
+    np.savez(tmp_path / "other.npz", **arrays)
+    err = run_error(capsys, ["ident", str(chain / "chain.npz"), "--config",
+                             str(write_config(tmp_path / "c.yaml")), "--validation",
+                             str(tmp_path / "other.npz"), "--auto"])
+    assert "other.npz" in err and "X1, X2, X3" in err and "F-X3" in err

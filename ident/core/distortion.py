@@ -48,6 +48,7 @@ from typing import Sequence
 
 import numpy as np
 
+from fnsi_lab import plain
 from fnsi_lab.ident.errors import IdentError
 from fnsi_lab.ident.core.bla import (LineSets, best_linear_approximation, line_sets,
                                      period_statistics)
@@ -173,13 +174,14 @@ def analyse_arrays(u: np.ndarray, y: np.ndarray, sample_rate_hz: float,
     if band_hz is None:
         band_hz = (float(exc.min()) * df, min(3.0 * float(exc.max()) * df, 0.45 * fs))
     elif not 0 <= band_hz[0] < band_hz[1]:
-        raise IdentError(f"{path}: analysed band {list(band_hz)} Hz is not [f_low, f_high] "
+        raise IdentError(f"{path}: analysed band {plain.band_hz(band_hz)} is not f_low-f_high "
                          "with 0 <= f_low < f_high")
     n_bins = N // 2 + 1
     band_bins = (int(np.ceil(band_hz[0] / df - 1e-9)), int(np.floor(band_hz[1] / df + 1e-9)))
     sets = line_sets(exc, band_bins, n_bins, fs, N)
     if sets.excited.size == 0:
-        raise IdentError(f"{path}: no excited line inside the analysed band {band_hz} Hz")
+        raise IdentError(f"{path}: no excited line inside the analysed band "
+                         f"{plain.band_hz(band_hz)}")
     U = np.fft.rfft(u, axis=2) / N                                     # (R, P, bins)
     Y = np.fft.rfft(y, axis=2) / N                                     # (R, P, bins, p)
     Ym, Yvar = period_statistics(Y)

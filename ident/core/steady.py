@@ -72,9 +72,9 @@ class PeriodSelection:
     def statement(self) -> str:
         """One line: which periods were used and why the others were not."""
         n_total = self.first + self.deviation.size
-        first, last = self.used[0] + 1, self.used[-1] + 1
-        used = (f"period {first} of {n_total} used" if first == last
-                else f"periods {first}-{last} of {n_total} used")
+        first_used, last_used = self.used[0] + 1, self.used[-1] + 1
+        used = (f"period {first_used} of {n_total} used" if first_used == last_used
+                else f"periods {first_used}-{last_used} of {n_total} used")
         parts = [used]
         if self.first:
             parts.append(f"{self.first} configured as transient")
