@@ -302,3 +302,17 @@ def test_validation_record_with_other_channels(chain, tmp_path, capsys):
                              str(write_config(tmp_path / "c.yaml")), "--validation",
                              str(tmp_path / "other.npz"), "--auto"])
     assert "other.npz" in err and "X1, X2, X3" in err and "F-X3" in err
+
+
+@pytest.mark.parametrize("bad_n", [1.5, 0, -4, float("nan")])
+def test_an_array_file_with_a_broken_period_length(chain, tmp_path, capsys, bad_n):
+    """An array file whose ``N`` is no whole number >= 1 is refused by name (``N = 1.5`` had
+    become one sample per period, and the error then blamed band_hz)."""
+    import numpy as np
+
+    with np.load(chain / "chain.npz") as f:
+        arrays = {k: f[k] for k in f.files}
+    arrays["N"] = np.array(bad_n)
+    np.savez(tmp_path / "bad.npz", **arrays)
+    err = run_error(capsys, ["ident", str(tmp_path / "bad.npz"), "--auto"])
+    assert "bad.npz" in err and "'N' (samples per period) must be a whole number" in err

@@ -110,11 +110,13 @@ def input_from_arrays(arrays: Mapping[str, Any], path: str = "",
     N = samples_per_period
     if "N" in arrays:
         try:
-            n_file = int(np.asarray(arrays["N"]).reshape(-1)[0])
-        except (TypeError, ValueError, IndexError):
+            n_value = float(np.asarray(arrays["N"], float).reshape(-1)[0])
+            # int() would make N = 1.5 one sample per period, without a word
+            n_file = int(n_value) if n_value == int(n_value) else 0
+        except (TypeError, ValueError, IndexError, OverflowError):
             n_file = 0
         if n_file < 1:  # not "no N": a wrong value (samples per period)
-            raise IdentDataError(f"{path}: 'N' (samples per period) must be an integer >= 1, "
+            raise IdentDataError(f"{path}: 'N' (samples per period) must be a whole number >= 1, "
                                  f"got {plain.value(np.asarray(arrays['N']).tolist())}; fix it or drop N")
         if N is not None and N != n_file:
             raise IdentDataError(f"{path}: N={n_file} in the file but samples_per_period={N}")
