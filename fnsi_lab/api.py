@@ -139,12 +139,14 @@ def identify(source: Any, config: Any = None, *, order: int | None = None,
         sweep gain nothing from threads, and threads oversubscribe a small machine: the
         README example took 23 s with the default OpenBLAS threads and 1.3 s with one, on
         a loaded 2-core machine. The answer does not depend on it (docs/method.md §1.3).
-    validation : str, path, mapping or IdentInput, optional
-        Another record of the same structure and channels (another force level, another
-        realisation). The nested test's simulation check (docs/robust.md, "Nonlinear against
-        linear") then predicts this record instead of the identified one: the nonlinear terms
-        are kept only if the nonlinear model predicts no output of it worse than the linear
-        fit of the identified record, and has a steady state under its force.
+    validation : str, path, mapping or IdentInput, or a list of them, optional
+        Other records of the same structure and channels (other force levels, another
+        realisation). The nested test's simulation check (docs/ident.md, "... on another
+        record") then predicts these records instead of the identified one: the nonlinear
+        terms are kept only if the nonlinear model predicts no output of any of them worse
+        than the linear fit of the identified record, and has a steady state under each
+        one's force. A level below and a level above: a friction model checked only on the
+        level above can be worse than the linear fit on the levels below.
 
     Returns
     -------
@@ -193,27 +195,30 @@ def identify(source: Any, config: Any = None, *, order: int | None = None,
                                   source[0] if isinstance(source, (list, tuple)) else source)
                                   if cfg is None
                                              else None))
-    other = None
-    if validation is not None and isinstance(source, (str, os.PathLike)) and isinstance(
-            validation, (str, os.PathLike)) and Path(source).resolve() == Path(
-                validation).resolve():
-        validation = None     # the identified record itself: the check's default
-    if validation is not None:   # its channels and rate checked before any work
+    others = []
+    wanted = (list(validation) if isinstance(validation, (list, tuple)) else
+              [] if validation is None else [validation])
+    identified = {Path(p).resolve() for p in (source if isinstance(source, (list, tuple))
+                                              else [source]) if isinstance(p, (str, os.PathLike))}
+    for record in wanted:
+        if isinstance(record, (str, os.PathLike)) and Path(record).resolve() in identified:
+            continue     # an identified record itself: the check's default reads it
         from fnsi_lab.ident.linear_comparison import validation_input
 
-        rc = request.config
-        other = _as_input(validation, samples_per_period or (cfg.samples_per_period if cfg
-                                                              else None))
+        rc = request.config   # each record's channels and rate checked before any work
+        other = _as_input(record, samples_per_period or (cfg.samples_per_period if cfg
+                                                         else None))
         validation_input(other, rc.outputs or inp.output_channels,
                          [i.name for i in rc.inputs] or inp.input_channels, inp.sample_rate_hz,
                          rc.output_quantity or inp.output_quantity, units=inp.channel_units,
                          transient_periods=rc.transient_periods)
+        others.append(other)
     load_s = time.perf_counter() - t0
     with restored_blas_threads():
         if blas_threads is not None:
             limit_blas_threads(check_order(blas_threads, "blas_threads"))
         return identify_request(inp, request, progress=progress, spent_s={"load": load_s},
-                                validation=other)
+                                validation=others or None)
 
 
 def analyse(sources: Any, config: Any = None, *, band_hz: Any = None, alpha: float = 0.01,

@@ -24,7 +24,7 @@ examples:
   fnsi-lab ident test.mcap --config ident.yaml --order 10
   fnsi-lab ident data.npz --config ident.yaml --auto --orders 2:20
   fnsi-lab ident data.mat --config ident.yaml --order 6 --max-order 20
-  fnsi-lab ident rms55.mcap --config joint.yaml --auto --validation rms69.mcap
+  fnsi-lab ident rms55.mcap --config joint.yaml --auto --validation rms40.mcap --validation rms69.mcap
   fnsi-lab ident rms40.mcap rms55.mcap rms69.mcap --config joint.yaml --auto   # one model
 
 INPUT: an fnsi-lab MCAP recording, or .npz/.mat with u (n_samples, n_inputs),
@@ -58,10 +58,12 @@ def add_ident_arguments(parser: argparse.ArgumentParser) -> None:
                         help="kind: spline elements (or nonlinearities: auto): write the config "
                              "with each replaced by the parametric form its curve suggests "
                              "('-' for stdout; docs/discovery.md)")
-    parser.add_argument("--validation", type=opt.INPUT, default=None, metavar="RECORD",
-                        help="another record of the structure (e.g. the next force level): "
-                             "the nonlinear terms are kept only if the model predicts it at "
-                             "least as well as the linear fit (docs/ident.md)")
+    parser.add_argument("--validation", type=opt.INPUT, action="append", default=None,
+                        metavar="RECORD",
+                        help="another record of the structure (e.g. the force level below "
+                             "and the one above; repeat for several): the nonlinear terms are "
+                             "kept only if the model predicts each at least as well as the "
+                             "linear fit (docs/ident.md)")
     parser.add_argument("--force", action="store_true",
                         help="replace an existing --json / --suggest file")
     parser.add_argument("--quiet", action="store_true", help="no summary on stdout")
@@ -321,7 +323,7 @@ def run_ident(args: argparse.Namespace) -> int:
     if args.json_out != "-":  # '' is refused there, not taken for "no file"
         if args.json_out is not None:
             check_output_path(args.json_out, force=args.force, option="--json",
-                              inputs=[*args.input, args.config])
+                              inputs=[*args.input, args.config, *(args.validation or [])])
     if args.auto and args.order is not None:
         raise IdentError("--order and --auto: give one (--auto chooses the order; --orders "
                          "FIRST:LAST limits its sweep)")
@@ -332,7 +334,7 @@ def run_ident(args: argparse.Namespace) -> int:
             raise IdentError(f"--suggest and --json both name {suggest}: one file cannot hold "
                              "the YAML and the JSON (fix: give two names)")
         check_output_path(suggest, force=args.force, option="--suggest",
-                          inputs=[*args.input, args.config])
+                          inputs=[*args.input, args.config, *(args.validation or [])])
     if suggest == "-" and args.json_out == "-":
         raise IdentError("--suggest - and --json -: only one of them can go to stdout")
     if getattr(args, "blas_threads", 0) and args.blas_threads > 0:

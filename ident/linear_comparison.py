@@ -31,7 +31,7 @@ def compare_with_linear(session: IdentSession, model: StateSpaceModel, modes: Se
                         verdicts: Sequence[str], *, order: int | None, sweep: Sequence[int],
                         reduce_at: int | None, max_order: int | None,
                         block_rows: int | None,
-                        validation: IdentInput | None = None,
+                        validation: IdentInput | Sequence[IdentInput] | None = None,
                         linear: Identification | None = None) -> NestedTest | None:
     """The linear fit of the same data (same orders, weighting, ``D`` choice, basis removed)
     and the nested test of the answer (``model``, its physical ``modes`` and coefficient
@@ -74,7 +74,56 @@ def compare_with_linear(session: IdentSession, model: StateSpaceModel, modes: Se
 
 def simulated_against_linear(session: IdentSession, model: StateSpaceModel,
                              linear_model: StateSpaceModel,
-                             validation: IdentInput | None = None) -> dict:
+                             validation: IdentInput | Sequence[IdentInput] | None = None
+                             ) -> dict:
+    """The nonlinear model and the linear fit simulated on the record (or records) the
+    check reads: the ``validation`` records when given, else each record identified
+    together (several records at once: each on its own, not pooled), else the record
+    itself (:func:`_simulated_on_one`).
+
+    A model that predicts one record better and another worse is no answer for both: the
+    check fails on the first record where an output is predicted worse or no steady state
+    is found (an independent joint identified on 10 + 20 + 35 N passed pooled and was
+    1-4 dB worse than the linear fit on its own 10 and 20 N records; checked on the level
+    above alone, a 35 N friction model was 2-10 dB worse on the levels below:
+    bench/RESULTS_independent.md).
+
+    Returns
+    -------
+    dict
+        That record's check (:func:`_simulated_on_one`; the first that fails, else the
+        first), with ``records``: every record's ``{record, own, converged, reason, worse,
+        worse_negligible, outputs}`` when there are several.
+    """
+    others = ([] if validation is None else [validation] if isinstance(validation, IdentInput)
+              else list(validation))
+    if others:
+        checks = [_simulated_on_one(session, model, linear_model, validation=v) for v in others]
+    elif len(session.input.parts) >= 2:
+        checks = [_simulated_on_one(session, model, linear_model, part=part)
+                  for part in _parts(session.input)]
+    else:
+        return _simulated_on_one(session, model, linear_model)
+    failed = [c for c in checks if not c["converged"] or c["worse"]]
+    deciding = failed[0] if failed else checks[0]
+    keys = ("record", "own", "converged", "reason", "worse", "worse_negligible", "outputs")
+    return {**deciding, "records": [{k: c.get(k) for k in keys} for c in checks]}
+
+
+def _parts(stacked: IdentInput) -> list[IdentInput]:
+    """The records that :func:`ident.core.io.stack_records` put together, each again an
+    input of its own (its realisations)."""
+    out, start = [], 0
+    for path, count in stacked.parts:
+        out.append(replace(stacked, u=stacked.u[start:start + count],
+                           y=stacked.y[start:start + count], path=path, parts=()))
+        start += count
+    return out
+
+
+def _simulated_on_one(session: IdentSession, model: StateSpaceModel,
+                      linear_model: StateSpaceModel, validation: IdentInput | None = None,
+                      part: IdentInput | None = None) -> dict:
     """The nonlinear model and the linear fit simulated on the session's own record (or on
     ``validation``, another record), as ``fnsi-lab validate`` simulates another record:
     harmonic balance over every line, the nonlinear forces reading the model's own motion
@@ -100,7 +149,9 @@ def simulated_against_linear(session: IdentSession, model: StateSpaceModel,
 
     cfg, inp, data = session.config, session.input, session.data
     name = None
-    if validation is not None:
+    if part is not None:   # one of the records identified together: its own record
+        inp, name = part, str(part.path)
+    elif validation is not None:
         inp = validation_input(validation, data.output_names, data.input_names,
                                session.input.sample_rate_hz, data.output_quantity,
                                units=session.input.channel_units,
@@ -117,13 +168,14 @@ def simulated_against_linear(session: IdentSession, model: StateSpaceModel,
                 transient_periods=transient, time_base=data.time_base,   # the model's
                 bilinear_period_s=data.bilinear_period_s,
                 # on another record a stop may never close: zero force, still a prediction
-                allow_zero_basis=validation is not None)
+                allow_zero_basis=validation is not None or part is not None)
         # validate's own balance (continuation included: without it the GVT's 84 N friction
         # + stop model found no steady state, with it it predicts 4-6 dB better)
         sim = balance_outputs(model, cfg.nonlinearities, record, data.band_hz)
         fit = balance_outputs(linear_model, (), record, data.band_hz).linear
     except (IdentError, ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
-        return {"method": "harmonic balance", "record": name, "converged": False,
+        return {"method": "harmonic balance", "record": name,
+                "own": part is not None or name is None, "converged": False,
                 "reason": str(exc), "outputs": [], "worse": []}
     rows = [{k: r[k] for k in ("name", "output_rms", "error_rms", "error_db",
                                "linear_fit_error_rms", "linear_fit_error_db")}
@@ -132,7 +184,8 @@ def simulated_against_linear(session: IdentSession, model: StateSpaceModel,
     units = {(session.input.channel_units or {}).get(n) for n in data.output_names}
     worse, negligible = (worse_outputs(rows, common_unit=len(units) <= 1) if converged
                          else ([], []))
-    return {"method": sim.method, "record": name, "converged": converged,
+    return {"method": sim.method, "record": name, "own": part is not None or name is None,
+            "converged": converged,
             "several_records": " + " in str(session.input.path),
             "reason": None if converged else sim.info.get("reason"),
             "iterations": sim.info.get("iterations"), "outputs": rows,

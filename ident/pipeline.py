@@ -91,7 +91,7 @@ def identify_input(inp: IdentInput, cfg: IdentConfig, *, order: int | None = Non
 
 def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = None,
                      spent_s: Mapping[str, float] | None = None,
-                     validation: IdentInput | None = None,
+                     validation: IdentInput | Sequence[IdentInput] | None = None,
                      left_out: Sequence[dict] = ()) -> Identification:
     """Identify with resolved settings (:func:`ident.request.resolve_request`).
 
@@ -106,11 +106,11 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
     spent_s : mapping, optional
         Seconds spent before, per stage (``{"load": 0.4}``: reading the file), added to the
         result's timings and total.
-    validation : IdentInput, optional
-        Another record of the same structure (another level, another realisation): the
-        nested test's simulation check predicts it instead of the identified record
-        (:func:`ident.linear_comparison.simulated_against_linear`), and runs even where
-        every coefficient is identified.
+    validation : IdentInput or sequence of IdentInput, optional
+        Other records of the same structure (other levels, another realisation): the
+        nested test's simulation check predicts each of them instead of the identified
+        record (:func:`ident.linear_comparison.simulated_against_linear`), and runs even
+        where every coefficient is identified.
     left_out : sequence of dict
         Elements an earlier pass left out because none of their coefficients is determined
         (:func:`_without_undetermined`), reported with the answer.
@@ -164,8 +164,10 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
     compare = session.config.compare_linear
     nested = None
     if validation is not None and not (session.config.nonlinearities and compare):
+        named = ", ".join(str(v.path) for v in (
+            [validation] if isinstance(validation, IdentInput) else validation))
         session.warnings.append(
-            f"the validation record {validation.path} was not used: "
+            f"the validation record {named} was not used: "
             + ("no nonlinear element to check" if not session.config.nonlinearities
                else "compare_linear: false skips the nested test and its simulation check"))
     if session.config.nonlinearities and compare:
@@ -211,7 +213,7 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
 
 
 def _before_the_reduction(session: IdentSession, fit: Fit, nested: NestedTest,
-                          validation: IdentInput | None
+                          validation: IdentInput | Sequence[IdentInput] | None
                           ) -> tuple[Fit, CoefficientSpectra | None, NestedTest] | None:
     """The model the reduction came from, as the answer, when the data support its nonlinear
     terms against the same linear fit and not the reduced model's (nested test and

@@ -126,3 +126,46 @@ def test_two_jenkins_elements_on_one_joint_are_searched_apart(campaign: Path):
     r = json.loads((campaign / "two35.json").read_text())
     slips = [e["slip"] for e in r["nonlinearities"] if e.get("kind") == "jenkins"]
     assert len(set(slips)) == len(slips), slips      # never the same column twice
+
+
+@pytest.fixture(scope="module")
+def six_levels(tmp_path_factory) -> Path:
+    """The bench's default campaign (3, 6, 10, 20, 35, 55 N: its phases)."""
+    out = tmp_path_factory.mktemp("indep6")
+    assert _write_campaign(out, ["3", "6", "10", "20", "35", "55"]) == 0
+    return out
+
+
+def test_several_records_are_checked_each_on_its_own(six_levels):
+    """10 + 20 + 35 N identified together: pooled over the three records, the simulation
+    check had passed a model that predicts the 10 and 20 N records 1-4 dB worse than the
+    linear fit. Each record is now simulated on its own, and the model is rejected on the
+    first record it predicts worse."""
+    proc = _cli(["ident", "indep-rms10.npz", "indep-rms20.npz", "indep-rms35.npz", "--config",
+                 "indep-jenkins.yaml", "--auto", "--json", "levels.json", "--quiet"],
+                six_levels)
+    assert proc.returncode == 0, proc.stderr
+    nvl = json.loads((six_levels / "levels.json").read_text())["nonlinear_vs_linear"]
+    records = nvl["simulation"]["records"]
+    assert [Path(r["record"]).name for r in records] == [
+        "indep-rms10.npz", "indep-rms20.npz", "indep-rms35.npz"]
+    assert all(r["own"] for r in records)
+    assert nvl["decision"] == "linear" and nvl["simulation_rejected"]
+    assert "its own record indep-rms" in nvl["statement"]
+
+
+def test_validation_on_the_levels_below_and_above(six_levels):
+    """The 35 N Jenkins model checked on the level above alone was kept and then predicted
+    the 3-10 N records 2-10 dB worse than the linear fit (bench/RESULTS_independent.md).
+    Checked on the level below as well (``--validation`` twice), it is rejected: on 20 N it
+    predicts an output worse than the linear fit."""
+    proc = _cli(["ident", "indep-rms35.npz", "--config", "indep-jenkins.yaml", "--auto",
+                 "--validation", "indep-rms20.npz", "--validation", "indep-rms55.npz",
+                 "--json", "j35.json", "--quiet"], six_levels)
+    assert proc.returncode == 0, proc.stderr
+    nvl = json.loads((six_levels / "j35.json").read_text())["nonlinear_vs_linear"]
+    assert [Path(r["record"]).name for r in nvl["simulation"]["records"]] == [
+        "indep-rms20.npz", "indep-rms55.npz"]
+    assert nvl["decision"] == "linear"
+    assert Path(nvl["simulation"]["record"]).name == "indep-rms20.npz"
+    assert "the validation record indep-rms20.npz" in nvl["statement"]

@@ -55,6 +55,9 @@ class IdentInput:
     channel_units : mapping str -> str
         Unit of each channel by name, from the recording's channel table (empty: not
         known, SI assumed; ``ident.core.units``).
+    parts : tuple of (str, int)
+        For records stacked by :func:`stack_records`: each record's path and number of
+        realisations, in order (empty for one record).
     """
 
     u: np.ndarray
@@ -70,6 +73,7 @@ class IdentInput:
     path: str = ""
     notes: tuple[str, ...] = field(default=())
     channel_units: Mapping[str, str] = field(default_factory=dict)
+    parts: tuple[tuple[str, int], ...] = field(default=())
 
 
 def _names(value: Any, n: int, prefix: str, what: str, path: str) -> tuple[str, ...]:
@@ -260,7 +264,9 @@ def stack_records(records: Sequence[IdentInput]) -> IdentInput:
     return replace(first, u=np.concatenate(us, axis=0), y=np.concatenate(ys, axis=0),
                    transient_periods=transient, excited_lines=lines, truth=truth,
                    output_quantity=quantity, path=" + ".join(str(r.path) for r in records),
-                   channel_units=units, notes=notes)
+                   channel_units=units, notes=notes,
+                   parts=tuple((str(r.path), int(np.asarray(u_k).shape[0]))
+                               for r, u_k in zip(records, us)))
 
 
 def _common_units(records: Sequence[IdentInput], names: Sequence[str]) -> dict[str, str]:

@@ -189,9 +189,13 @@ class NestedTest:
     @property
     def _simulated_on(self) -> str:
         """Which record the simulation check predicted, in words."""
-        record = (self.simulation or {}).get("record")
-        return ("its own record" if not record else "the validation record "
-                + " + ".join(Path(p).name for p in str(record).split(" + ")))
+        sim = self.simulation or {}
+        record = sim.get("record")
+        if not record:
+            return "its own record"
+        names = " + ".join(Path(p).name for p in str(record).split(" + "))
+        # one of the records identified together, or another record
+        return f"its own record {names}" if sim.get("own") else f"the validation record {names}"
 
     @property
     def statement(self) -> str:
@@ -215,10 +219,14 @@ class NestedTest:
             checked = ""
             if self.simulation and self.simulation.get("record"):
                 rows = self.simulation.get("outputs") or []
+                more = [Path(str(r["record"])).name for r in
+                        (self.simulation.get("records") or [])[1:]]
                 checked = (f"; simulated on {self._simulated_on} it predicts every output at "
                            "least as well as the linear fit (" + ", ".join(
                                f"{r['name']} {r['error_db']:+.1f} dB against "
-                               f"{r['linear_fit_error_db']:+.1f} dB" for r in rows) + ")")
+                               f"{r['linear_fit_error_db']:+.1f} dB" for r in rows) + ")"
+                           + (f", and on {', '.join(more)} (simulation.records)" if more
+                              else ""))
             small = (self.simulation or {}).get("worse_negligible") or []
             if small:
                 checked += (f"; simulated, it predicts {', '.join(small)} slightly worse than "
