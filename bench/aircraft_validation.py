@@ -70,9 +70,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--joint", choices=("jenkins", "jenkins-stop", "joint"), default="jenkins",
                     help="the nonlinear config: aircraft-jenkins.yaml, aircraft-jenkins-stop.yaml "
                          "or aircraft-joint.yaml")
-    ap.add_argument("--decide-on", choices=("own", "next"), default="own",
-                    help="the record of the nested test's simulation check: the identified "
-                         "one (default) or the next level's")
+    ap.add_argument("--decide-on", choices=("own", "next", "both"), default="own",
+                    help="the records of the nested test's simulation check: the identified "
+                         "one (default), the next level's, or both neighbours' (the level "
+                         "below and the one above)")
     ap.add_argument("--together", type=float, nargs="+", default=None, metavar="LEVEL",
                     help="identify these levels together (one model; docs/ident.md, 'Several "
                          "records at once') and validate it on every other level")
@@ -93,8 +94,12 @@ def main(argv: list[str] | None = None) -> int:
     for i, row in enumerate(rows):
         if args.decide_on == "next" and len(rows) >= 3:
             d = i + 1 if i + 1 < len(rows) else i - 1
-            decided_on[i] = rows[d]
+            decided_on[i] = [rows[d]]
             validated_on[i] = rows[i + 2] if i + 2 < len(rows) else rows[min(i, d) - 1]
+        elif args.decide_on == "both" and len(rows) >= 4:
+            near = [k for k in (i - 1, i + 1) if 0 <= k < len(rows)]
+            decided_on[i] = [rows[k] for k in near]
+            validated_on[i] = rows[i + 2] if i + 2 < len(rows) else rows[i - 2]
         else:
             validated_on[i] = rows[i + 1] if i + 1 < len(rows) else rows[i - 1]
     for i, row in enumerate(rows):
@@ -105,7 +110,8 @@ def main(argv: list[str] | None = None) -> int:
             # a parameter the data cannot tell leaves its element out (nonlinear_vs_linear)
             res = fnsi_lab.identify(str(path), config=str(args.work / f"aircraft-{kind}.yaml"),
                                     validation=(None if other is None or kind == "linear"
-                                                else str(args.work / other["file"])))
+                                                else [str(args.work / o["file"])
+                                                      for o in other]))
             answers[(row["level_n_rms"], "linear" if kind == "linear" else "joint")] = res
             print(f"{row['level_n_rms']:5g} N {kind:6s}: order {res.order}, "
                   f"{len(res.modes)} physical modes, {time.perf_counter() - t0:.1f} s",
@@ -119,8 +125,8 @@ def main(argv: list[str] | None = None) -> int:
         nl_doc = nl.to_json()
         nvl = nl_doc.get("nonlinear_vs_linear") or {}
         entry = {"level_n_rms": level, "validated_on_n_rms": other["level_n_rms"],
-                 "decided_on_n_rms": (decided_on[i]["level_n_rms"] if i in decided_on
-                                      else level),
+                 "decided_on_n_rms": ([o["level_n_rms"] for o in decided_on[i]]
+                                      if i in decided_on else [level]),
                  "refused": [r["name"] for r in nvl.get("refused") or []],
                  "linear": {"order": lin.order, "modes": _modes(lin, truth),
                             "damping": {float(m["frequency_hz"]): m["damping_ratio"]
@@ -143,7 +149,7 @@ def main(argv: list[str] | None = None) -> int:
                 entry[kind]["validation"] = {"error": str(exc)}
         table.append(entry)
     suffix = ("" if args.joint == "jenkins" else f"-{args.joint}") + (
-        "-next" if args.decide_on == "next" else "")
+        f"-{args.decide_on}" if args.decide_on != "own" else "")
     out = ROOT / "out" / f"aircraft_validation{suffix}.json"
     out.parent.mkdir(exist_ok=True)
     from fnsi_lab.outputs import dumps
@@ -166,8 +172,8 @@ def main(argv: list[str] | None = None) -> int:
               + " ".join(f"{c['name']}={c['value']:.3g}({c.get('verdict') or '?'})"
                          for c in nl["coefficients"])
               + f" [{nl['decision']}] slip {nl['slip_m']}"
-              + (f" decided on {e['decided_on_n_rms']:g} N"
-                 if e["decided_on_n_rms"] != e["level_n_rms"] else "")
+              + (" decided on " + " + ".join(f"{x:g}" for x in e["decided_on_n_rms"]) + " N"
+                 if e["decided_on_n_rms"] != [e["level_n_rms"]] else "")
               + f" | on {e['validated_on_n_rms']:g} N: nl {val(nl, 'error_db')}, "
                 f"its linear {val(nl, 'linear_error_db')}, linear fit {val(lin, 'linear_error_db')}")
         if nl.get("statement"):
