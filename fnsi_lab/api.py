@@ -200,9 +200,17 @@ def identify(source: Any, config: Any = None, *, order: int | None = None,
               [] if validation is None else [validation])
     identified = {Path(p).resolve() for p in (source if isinstance(source, (list, tuple))
                                               else [source]) if isinstance(p, (str, os.PathLike))}
+    if all(isinstance(r, (str, os.PathLike)) and Path(r).resolve() in identified
+           for r in wanted):
+        wanted = []      # only identified records: the check's default reads each of them
+    seen = set()
     for record in wanted:
-        if isinstance(record, (str, os.PathLike)) and Path(record).resolve() in identified:
-            continue     # an identified record itself: the check's default reads it
+        if isinstance(record, (str, os.PathLike)):
+            if Path(record).resolve() in seen:
+                continue     # named twice: checked once
+            seen.add(Path(record).resolve())
+        # an identified record named beside others is checked with them (simulation.own),
+        # not dropped: the model must predict each record named no worse than the linear fit
         from fnsi_lab.ident.linear_comparison import validation_input
 
         rc = request.config   # each record's channels and rate checked before any work

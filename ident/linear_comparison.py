@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import replace
+from pathlib import Path
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -121,6 +122,17 @@ def _parts(stacked: IdentInput) -> list[IdentInput]:
     return out
 
 
+def _is_identified(identified: IdentInput, path: str) -> bool:
+    """Whether the file ``path`` is one of the records identified (``identified.path``, or
+    each of the records stacked into it); arrays given without a file never are."""
+    names = [p for p, _ in identified.parts] or [str(identified.path)]
+    try:
+        return Path(path).is_file() and any(
+            Path(p).is_file() and Path(p).resolve() == Path(path).resolve() for p in names)
+    except OSError:
+        return False
+
+
 def _simulated_on_one(session: IdentSession, model: StateSpaceModel,
                       linear_model: StateSpaceModel, validation: IdentInput | None = None,
                       part: IdentInput | None = None) -> dict:
@@ -157,6 +169,7 @@ def _simulated_on_one(session: IdentSession, model: StateSpaceModel,
                                units=session.input.channel_units,
                                transient_periods=cfg.transient_periods)
         name = str(validation.path or "the validation record")
+    own = part is not None or name is None or _is_identified(session.input, name)
     transient = (cfg.transient_periods if cfg.transient_periods is not None
                  else inp.transient_periods)
     try:
@@ -175,7 +188,7 @@ def _simulated_on_one(session: IdentSession, model: StateSpaceModel,
         fit = balance_outputs(linear_model, (), record, data.band_hz).linear
     except (IdentError, ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
         return {"method": "harmonic balance", "record": name,
-                "own": part is not None or name is None, "converged": False,
+                "own": own, "converged": False,
                 "reason": str(exc), "outputs": [], "worse": []}
     rows = [{k: r[k] for k in ("name", "output_rms", "error_rms", "error_db",
                                "linear_fit_error_rms", "linear_fit_error_db")}
@@ -184,7 +197,7 @@ def _simulated_on_one(session: IdentSession, model: StateSpaceModel,
     units = {(session.input.channel_units or {}).get(n) for n in data.output_names}
     worse, negligible = (worse_outputs(rows, common_unit=len(units) <= 1) if converged
                          else ([], []))
-    return {"method": sim.method, "record": name, "own": part is not None or name is None,
+    return {"method": sim.method, "record": name, "own": own,
             "converged": converged,
             "several_records": " + " in str(session.input.path),
             "reason": None if converged else sim.info.get("reason"),
