@@ -311,7 +311,9 @@ class Identification:
             out[key] = ({**value, **out[key]} if isinstance(value, dict)
                         and isinstance(out.get(key), dict) else value)
         out["warnings"] = list(s.warnings)
-        out["timings_s"] = {**s.timings_s, **out.get("timings_s", {})}
+        # the robust pipeline's stages, and the whole identification's (its total is the
+        # order sweep's alone: 0.27 s where the GVT's linear fit took 5.9 s)
+        out["timings_s"] = {**out.get("timings_s", {}), **s.timings_s}
         units = self.units
         out["units"] = units
         doc = add_coefficient_units(json_safe(out), units)
