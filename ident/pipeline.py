@@ -25,6 +25,7 @@ import time
 from dataclasses import replace
 from typing import Any, Mapping, Sequence
 
+from fnsi_lab import plain
 from fnsi_lab.ident.coefficient_summaries import (coefficient_summaries,
                                                   session_coefficient_spectra)
 from fnsi_lab.ident.config import IdentConfig
@@ -164,10 +165,11 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
     compare = session.config.compare_linear
     nested = None
     if validation is not None and not (session.config.nonlinearities and compare):
-        named = ", ".join(str(v.path) for v in (
-            [validation] if isinstance(validation, IdentInput) else validation))
+        named = [str(v.path) for v in (
+            [validation] if isinstance(validation, IdentInput) else validation)]
         session.warnings.append(
-            f"the validation record {named} was not used: "
+            ("the validation records " + plain.names(named[:-1]) + f" and {named[-1]} were"
+             if len(named) > 1 else f"the validation record {named[0]} was") + " not used: "
             + ("no nonlinear element to check" if not session.config.nonlinearities
                else "compare_linear: false skips the nested test and its simulation check"))
     if session.config.nonlinearities and compare:

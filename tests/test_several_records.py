@@ -110,3 +110,24 @@ def test_a_validation_record_with_nothing_to_predict_is_refused(levels, tmp_path
     with pytest.raises(FnsiLabError, match=r"one.npz: 1 period\(s\) .* none left to predict"):
         fnsi_lab.identify(str(levels / "l0.npz"), str(levels / "cubic.yaml"), order=6,
                           validation=str(tmp_path / "one.npz"))
+
+
+def test_validation_records_not_used_and_a_period_mismatch_say_so_plainly(levels, tmp_path):
+    """`validation=[A, B]` with `compare_linear: false`: the warning names both records in
+    plain words ("records A and B were not used", not "record A, B was"); a validation
+    record of another period length names the fix."""
+    cfg = tmp_path / "nocompare.yaml"
+    cfg.write_text((levels / "cubic.yaml").read_text() + "compare_linear: false\n")
+    with np.load(levels / "l1.npz") as z:
+        np.savez(tmp_path / "l2.npz", **{k: z[k] for k in z.files})
+    r = fnsi_lab.identify(str(levels / "l0.npz"), str(cfg), order=6,
+                          validation=[str(levels / "l1.npz"), str(tmp_path / "l2.npz")])
+    (line,) = [w for w in r.to_json()["warnings"] if "not used" in w]
+    assert line.startswith(f"the validation records {levels / 'l1.npz'} and "
+                           f"{tmp_path / 'l2.npz'} were not used: compare_linear: false"), line
+    fixed = tmp_path / "fixed.yaml"
+    fixed.write_text((levels / "cubic.yaml").read_text() + "samples_per_period: 4096\n")
+    with pytest.raises(FnsiLabError, match=r"short.npz: N=2048 in the file but "
+                                           r"samples_per_period=4096 \(fix: "):
+        fnsi_lab.identify(str(levels / "l0.npz"), str(fixed), order=6,
+                          validation=str(levels / "short.npz"))

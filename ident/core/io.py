@@ -123,7 +123,9 @@ def input_from_arrays(arrays: Mapping[str, Any], path: str = "",
             raise IdentDataError(f"{path}: 'N' (samples per period) must be a whole number >= 1, "
                                  f"got {plain.value(np.asarray(arrays['N']).tolist())}; fix it or drop N")
         if N is not None and N != n_file:
-            raise IdentDataError(f"{path}: N={n_file} in the file but samples_per_period={N}")
+            raise IdentDataError(f"{path}: N={n_file} in the file but samples_per_period={N} "
+                                 f"(fix: give a record of {N} samples per period, or make "
+                                 "samples_per_period and the file's N agree)")
         N = n_file
     for key in ("u", "y"):  # a cast to float would keep the real part without a word
         if np.iscomplexobj(arrays[key]):
