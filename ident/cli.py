@@ -304,6 +304,10 @@ def _print_nested(res: dict, out=None) -> None:
     if not nvl:
         return
     print(f"nonlinear vs linear: {nvl['statement']}", file=out)
+    before = nvl.get("before_reduction")
+    if before:
+        print(f"  the model before the reduction (order {before['order']}), tested too: "
+              f"{before['statement']}", file=out)
     if nvl.get("linear_modes") is None:
         return
     modes = nvl["linear_modes"]

@@ -239,6 +239,9 @@ def _before_the_reduction(session: IdentSession, fit: Fit, nested: NestedTest,
         sweep=(), reduce_at=None, max_order=None, block_rows=None, validation=validation,
         linear=nested.linear)
     if test is None or not test.supported:
+        if test is not None:   # said, not only done: the answer stays the linear fit
+            session.evidence.setdefault("nonlinear_vs_linear", {})["before_reduction"] = {
+                "order": full.model.order, "statement": test.statement}
         return None
     why = (f"the reduced model at order {auto.reduced.order} did not pass the nested test "
            "against the linear fit, the model it came from did")

@@ -511,6 +511,28 @@ def test_the_model_before_the_reduction_when_the_reduced_one_fails(tmp_path):
         assert out["error_db"] < out["linear_fit_error_db"] - 3.0, out
 
 
+def test_the_model_before_the_reduction_says_why_when_it_fails_too(tmp_path):
+    """The same 40 N record checked on its own record alone: the reduced model fails the
+    F-test and the model before the reduction, tried next, predicts an output of its own
+    record worse than the linear fit (measured: order 30, drive 0.8 dB worse), so the answer
+    is the linear fit. That second test used to leave no trace; the JSON and the summary
+    now say which model was tried and why it failed."""
+    gvt = _campaign(tmp_path, "40", phase_seed=12)
+    proc = subprocess.run([sys.executable, "-m", "fnsi_lab", "ident", "gvt/aircraft-rms40.mcap",
+                           "--config", "gvt/aircraft-jenkins.yaml", "--auto", "--json",
+                           "r.json"], cwd=tmp_path, capture_output=True, text=True,
+                          timeout=600, env=dict(os.environ, OPENBLAS_NUM_THREADS="1"))
+    assert proc.returncode == 0, proc.stderr
+    assert gvt.is_dir()
+    doc = json.loads((tmp_path / "r.json").read_text())
+    nvl = doc["nonlinear_vs_linear"]
+    assert nvl["decision"] == "linear" and doc["final"] == "reduced"
+    before = nvl["before_reduction"]
+    assert before["order"] > doc["reduced"]["order"]
+    assert before["statement"].startswith("the nonlinear terms")
+    assert f"the model before the reduction (order {before['order']}), tested too" in proc.stdout
+
+
 def test_an_answer_without_a_mode_is_tested_against_the_linear_fit(tmp_path):
     """The GVT joint at 26 N (barely slipping) with another multisine realisation: the
     slip search lands on the criterion's flat top, the order selection on order 3 and the
