@@ -112,7 +112,11 @@ def print_summary(report: Any, out=None) -> None:
         from fnsi_lab.ident.core.level_comparison import SAME_SHAPE_MAC
 
         print("  (a resonance is followed from level to level where its frequency is the "
-              f"nearest and its shape agrees, MAC >= {SAME_SHAPE_MAC}"
+              + (f"nearest and its shape agrees, MAC >= {SAME_SHAPE_MAC}"
+                 if len(lv["outputs"]) >= 2 else
+                 # one output: every MAC is 1 (docs/discovery.md)
+                 f"nearest; one output compared ({lv['outputs'][0]['name']}): the shapes "
+                 "cannot tell modes apart, so by frequency alone")
               + ("; ~: read at a line, +- half the line spacing)"
                  if any(r for row in lv["resonances"] + lv.get("resonances_appearing", [])
                         for r in row["resolution_hz"]) else ")"),

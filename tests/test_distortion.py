@@ -364,3 +364,21 @@ def test_a_record_with_an_extra_channel_is_compared_on_the_shared_outputs():
     assert row["shift_percent"][1] == pytest.approx(100 * (5.8 / 6.0 - 1), abs=0.3)
     (note,) = doc["notes"]
     assert "high.npz: c" in note
+
+
+def test_one_shared_output_says_the_shapes_are_not_compared():
+    """Records that share one output: every MAC is 1, so the pairing rests on frequency
+    alone (docs/discovery.md), and the summary says so instead of "its shape agrees, MAC
+    >= 0.8". The 8.0 Hz mode softened to 5.3 Hz is then taken for the 5.0 Hz one's +6 %."""
+    import io
+
+    import fnsi_lab
+    from fnsi_lab.ident.analyse_cli import print_summary
+
+    low = _modal_record([(5.0, 0.01, (1,)), (8.0, 0.01, (1,))], 1.0, "low.npz", 0,
+                        channels=("a",))
+    high = _modal_record([(5.3, 0.01, (1,))], 3.0, "high.npz", 1, channels=("a",))
+    text = io.StringIO()
+    print_summary(fnsi_lab.analyse([low, high]), out=text)
+    assert "one output compared (a): the shapes cannot tell modes apart" in text.getvalue()
+    assert "its shape agrees" not in text.getvalue()
