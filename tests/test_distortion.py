@@ -382,3 +382,25 @@ def test_one_shared_output_says_the_shapes_are_not_compared():
     print_summary(fnsi_lab.analyse([low, high]), out=text)
     assert "one output compared (a): the shapes cannot tell modes apart" in text.getvalue()
     assert "its shape agrees" not in text.getvalue()
+
+
+def test_report_and_recording_of_records_with_other_outputs(tmp_path):
+    """`analyse A B --report --rrd` where B has an extra sensor (its most distorted output
+    among the ones drawn), and where A and B are two structures sharing no channel: both
+    used to end in a traceback (StopIteration: an output the other record lacks; None
+    levels indexed). Each record's level plots show the drawn outputs it has (a record
+    with none of them: its own first outputs), the BLA overlay the records that have the
+    output."""
+    import fnsi_lab
+    from fnsi_lab.viewer.distortion import save_rrd, write_report
+
+    low = _modal_record([(6.0, 0.01, (1, 0.5))], 1.0, "low.npz", 0)
+    high = _modal_record([(5.8, 0.01, (1, 0.5, 0.2))], 3.0, "high.npz", 1,
+                         channels=("a", "b", "c"))
+    other = _modal_record([(9.0, 0.02, (1,))], 2.0, "other.npz", 2, channels=("z",))
+    for k, records in enumerate(([low, high], [low, other])):
+        report = fnsi_lab.analyse(records)
+        write_report(report, tmp_path / f"r{k}.html", outputs=["c"] if k == 0 else None)
+        save_rrd(report, tmp_path / f"r{k}.rrd")
+        text = (tmp_path / f"r{k}.html").read_text()
+        assert text.count("<svg") >= 3, k     # a level plot per record and a BLA overlay

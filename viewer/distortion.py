@@ -73,7 +73,7 @@ def chosen_outputs(report: Any, names: Sequence[str] | None = None, n: int = 3) 
     distorted)."""
     recs = report.records
     if names:
-        known = {o.name for o in recs[0].outputs}
+        known = {o.name for r in recs for o in r.outputs}
         missing = [x for x in names if x not in known]
         if missing:
             from fnsi_lab.errors import ConfigError
@@ -95,6 +95,18 @@ def _output(rec: Any, name: str) -> Any:
     return next(o for o in rec.outputs if o.name == name)
 
 
+def _has(rec: Any, name: str) -> bool:
+    """Whether the record has the output ``name`` (records of one campaign may differ by a
+    sensor, records of two structures by every channel)."""
+    return any(o.name == name for o in rec.outputs)
+
+
+def _drawn(rec: Any, names: Sequence[str]) -> list[str]:
+    """The chosen outputs this record has; its first three when it has none of them (a
+    record of another structure analysed beside the others)."""
+    return [n for n in names if _has(rec, n)] or [o.name for o in rec.outputs[:3]]
+
+
 def level_series(spectra: dict) -> list[tuple[str, np.ndarray, np.ndarray]]:
     """(style key, frequency_hz, level_db) of one output's level plot, drawing order."""
     out = [("noise", spectra["band_hz"], _db(spectra["noise_var"]))]
@@ -111,7 +123,7 @@ def level_series(spectra: dict) -> list[tuple[str, np.ndarray, np.ndarray]]:
 def level_panels(rec: Any, outputs: Sequence[str]) -> list[Panel]:
     """One level panel per chosen output of one record."""
     panels = []
-    for name in outputs:
+    for name in _drawn(rec, outputs):
         o = _output(rec, name)
         series = level_series(o.spectra)
         fx = Axis.fit("frequency (Hz)", *[s[1] for s in series], pad=0.0)
@@ -133,7 +145,7 @@ def frf_panels(report: Any, outputs: Sequence[str]) -> list[Panel]:
     panels = []
     for name in outputs:
         curves = []
-        for r in recs:
+        for r in (r for r in recs if _has(r, name)):
             j = [o.name for o in r.outputs].index(name)
             curves.append((r, r.frequency_hz, 20 * np.log10(np.abs(r.frf[:, j]) + 1e-300)))
         p = Panel(_key(name), f"BLA {name} / {recs[0].input_channel} (dB), by level",
@@ -273,7 +285,7 @@ def figure_frf_overlay(report: Any, output: str) -> Any:
     """BLA magnitude of every record at one output, by level (matplotlib figure)."""
     from fnsi_lab.viewer.html import new_figure
 
-    recs = sorted(report.records, key=lambda r: r.input_rms)
+    recs = sorted((r for r in report.records if _has(r, output)), key=lambda r: r.input_rms)
     fig, (ax,) = new_figure(9.0, 4.0)
     for i, r in enumerate(recs):
         j = [o.name for o in r.outputs].index(output)
@@ -312,7 +324,7 @@ def distortion_section(report: Any, outputs: Sequence[str] | None = None) -> str
                   f"<p class='note'>noise: {html.escape(rec.noise_source)}; "
                   f"{rec.n_realizations} realisation(s) x {rec.n_periods} period(s)</p>",
                   html_table(rows), html_table(res)]
-        for name in names:
+        for name in _drawn(rec, names):
             parts.append(figure_html(figure_levels(rec, name),
                                       f"levels of {name} against frequency",
                                       f"fig-levels-{_key(record_label(rec))}-{_key(name)}"))
@@ -323,7 +335,7 @@ def distortion_section(report: Any, outputs: Sequence[str] | None = None) -> str
                                       f"BLA of {name} at every level",
                                       f"fig-bla-{_key(name)}"))
         rows = []
-        levels = report.levels
+        levels = report.levels or {"resonances": []}   # None: not levels of one structure
         for i, row in enumerate(levels["resonances"] + levels.get("resonances_appearing", [])):
             rows.append({"resonance": i + 1, "frequency (Hz)": _list(row["frequency_hz"], 5),
                          "shift (%)": _list(row["shift_percent"], 3),
