@@ -286,9 +286,12 @@ def _report_left_out(session: IdentSession, left_out: Sequence[dict]) -> None:
     earlier pass left out and why."""
     names = ", ".join(repr(e["name"]) for e in left_out)
     kept = ", ".join(repr(nl.name) for nl in session.config.nonlinearities)
-    session.warnings.append(f"{names} left out: none of its coefficients is determined by "
-                            f"the data (identified again with {kept}; "
-                            "nonlinear_vs_linear.refused says why)")
+    said = (f"{names} left out: none of its coefficients is determined by the data "
+            f"(identified again with {kept}; nonlinear_vs_linear.refused says why)")
+    session.warnings.append(said)
     evidence = session.evidence.setdefault("nonlinear_vs_linear", {})
     evidence["refused"] = [*evidence.get("refused", []), *left_out]
+    # the nested test's statement replaces it; without the test (compare_linear: false)
+    # it is the one line the summary and the report print (a KeyError traceback before)
+    evidence.setdefault("statement", said)
 

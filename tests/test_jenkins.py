@@ -567,3 +567,21 @@ def test_an_element_whose_coefficients_are_undetermined_is_left_out(tmp_path):
     assert refused["name"] == "gap" and "no coefficient determined" in refused["reason"]
     assert any("'gap' left out" in w for w in doc["warnings"])
     assert all(c["name"] == "joint" for c in doc["coefficients"])
+
+
+def test_an_element_left_out_without_the_nested_test(tmp_path):
+    """The same record and elements with ``compare_linear: false`` (real CLI): the stop is
+    left out all the same, and the summary says so where it ended in a KeyError traceback
+    (``nonlinear_vs_linear`` then held ``refused`` and no ``statement``)."""
+    gvt = _campaign(tmp_path, "40", phase_seed=12)
+    cfg = tmp_path / "nocompare.yaml"
+    cfg.write_text((gvt / "aircraft-jenkins-stop.yaml").read_text() + "compare_linear: false\n")
+    proc = subprocess.run([sys.executable, "-m", "fnsi_lab", "ident", "gvt/aircraft-rms40.mcap",
+                           "--config", str(cfg), "--auto", "--json", "r.json"], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=600,
+                          env=dict(os.environ, OPENBLAS_NUM_THREADS="1"))
+    assert proc.returncode == 0, proc.stderr
+    nvl = json.loads((tmp_path / "r.json").read_text())["nonlinear_vs_linear"]
+    assert [r["name"] for r in nvl["refused"]] == ["gap"]
+    assert nvl["statement"].startswith("'gap' left out")
+    assert "nonlinear vs linear: 'gap' left out" in proc.stdout
