@@ -93,7 +93,9 @@ def identify_input(inp: IdentInput, cfg: IdentConfig, *, order: int | None = Non
 def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = None,
                      spent_s: Mapping[str, float] | None = None,
                      validation: IdentInput | Sequence[IdentInput] | None = None,
-                     left_out: Sequence[dict] = ()) -> Identification:
+                     left_out: Sequence[dict] = (),
+                     searched_out: tuple[Sequence[dict], Sequence[str]] = ((), ())
+                     ) -> Identification:
     """Identify with resolved settings (:func:`ident.request.resolve_request`).
 
     Parameters
@@ -115,6 +117,9 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
     left_out : sequence of dict
         Elements an earlier pass left out because none of their coefficients is determined
         (:func:`_without_undetermined`), reported with the answer.
+    searched_out : (sequence of dict, sequence of str)
+        Elements an earlier pass's parameter search left out (their ``refused`` entries)
+        and its warnings, reported with the answer (the pass run again has no search).
 
     Returns
     -------
@@ -143,6 +148,10 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
                 "localisation", "nonlinearities: auto located no element whose nonlinear force "
                 "explains the distortion beyond the noise (localisation: the candidates and "
                 "why): the answer is the linear fit")
+    if searched_out[0]:   # the first pass's search: said again, not lost with its session
+        evidence = session.evidence.setdefault("nonlinear_vs_linear", {})
+        evidence["refused"] = [*searched_out[0], *evidence.get("refused", [])]
+        session.warnings[:0] = list(searched_out[1])
     if left_out:
         _report_left_out(session, left_out)
     fit = fit_session(session, order=order, sweep=sweep, reduce_at=reduce_at,
@@ -161,7 +170,8 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
                     nl for nl in session.config.nonlinearities
                     if nl.name not in {u["name"] for u in undetermined}))),
             progress=progress, spent_s=spent, validation=validation,
-            left_out=[*left_out, *undetermined])
+            left_out=[*left_out, *undetermined], searched_out=_searched_out(session, left_out,
+                                                                           searched_out))
     compare = session.config.compare_linear
     nested = None
     if validation is not None and not (session.config.nonlinearities and compare):
@@ -279,6 +289,21 @@ def _undetermined_elements(session: IdentSession, spectra: CoefficientSpectra | 
                        + "; ".join(f"{n}: {rows[n].get('verdict_reason')}"
                                    for n in nl.coefficient_names if n in rows) + ")"}
             for nl in none]
+
+
+def _searched_out(session: IdentSession, left_out: Sequence[dict],
+                  before: tuple[Sequence[dict], Sequence[str]]
+                  ) -> tuple[list[dict], list[str]]:
+    """The elements this pass's parameter search left out (``refused`` entries that are not
+    coefficient refusals) and its warning, with those of the passes ``before``: the pass run
+    again has no search of its own, and lost them (the GVT at 40 N with a Jenkins element, a
+    stop and a cubic spring: the stop, never touched, was left out by the search, the
+    cubic spring for its coefficient, and only the cubic spring was reported)."""
+    evidence = session.evidence.get("nonlinear_vs_linear") or {}
+    searched = [r for r in evidence.get("refused", []) if r not in left_out
+                and r not in before[0]]
+    said = [evidence["statement"]] if searched and evidence.get("statement") else []
+    return [*before[0], *searched], [*before[1], *said]
 
 
 def _report_left_out(session: IdentSession, left_out: Sequence[dict]) -> None:

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from fnsi_lab.ident.config import parse_ident_config
 from fnsi_lab.ident.core.basis import Nonlinearity
@@ -585,3 +586,23 @@ def test_an_element_left_out_without_the_nested_test(tmp_path):
     assert [r["name"] for r in nvl["refused"]] == ["gap"]
     assert nvl["statement"].startswith("'gap' left out")
     assert "nonlinear vs linear: 'gap' left out" in proc.stdout
+
+
+def test_an_element_the_search_left_out_is_still_reported_after_another_pass(tmp_path):
+    """The GVT joint at 40 N (the bench campaign's realisation 2) as a Jenkins element, a
+    stop and a cubic spring at the drive: the parameter search leaves the stop out (its
+    clearances cannot be told), then the cubic spring's coefficient is undetermined and the
+    identification runs again with the Jenkins element alone. That second pass has no
+    search, and the stop's refusal was lost with the first: only the cubic spring was
+    reported. Both are now, in ``refused`` and in the warnings."""
+    import fnsi_lab
+
+    gvt = _campaign(tmp_path, "40", phase_seed=2)
+    cfg = yaml.safe_load((gvt / "aircraft-jenkins-stop.yaml").read_text())
+    cfg["nonlinearities"].append({"name": "cub", "kind": "polynomial",
+                                  "channels": {"drive": 1}, "exponent": 3})
+    doc = fnsi_lab.identify(str(gvt / "aircraft-rms40.mcap"), config=cfg).to_json()
+    assert [nl["name"] for nl in doc["nonlinearities"]] == ["joint"]
+    assert [r["name"] for r in doc["nonlinear_vs_linear"]["refused"]] == ["gap", "cub"]
+    assert any("nonlinearity 'gap'" in w for w in doc["warnings"])
+    assert any("'cub' left out" in w for w in doc["warnings"])
