@@ -85,6 +85,26 @@ def test_a_model_that_simulates_worse_than_the_linear_fit_is_not_the_answer():
                                      "worse": ["payload"]}).statement == plain.statement
 
 
+def test_outputs_slightly_worse_on_any_record_are_named():
+    """Checked on two records (``--validation A --validation B``), the model passes and
+    predicts an output of B slightly worse than the linear fit (below 1 % of its error
+    energy: not counted). The statement used to say only the first record's (none here)
+    and claimed every output at least as well on B; it names B's, with the record."""
+    from fnsi_lab.ident.robust.nested import NestedTest
+
+    test = NestedTest(residual_nonlinear=1.0, residual_linear=2.0, parameters_nonlinear=20,
+                      parameters_linear=10, n_observations=1000, statistic=50.0, p_value=1e-9,
+                      decision="nonlinear", order_nonlinear=6, order_linear=6,
+                      weighting="noise")
+    rows = [{"name": "wing", "error_db": -12.0, "linear_fit_error_db": -11.0}]
+    a = {"record": "rms40.mcap", "own": False, "converged": True, "reason": None,
+         "worse": [], "worse_negligible": [], "outputs": rows}
+    b = {**a, "record": "/lab/rms69.mcap", "worse_negligible": ["IP1-X", "IP2-X"]}
+    kept = test.require_simulation({**a, "records": [a, b]})
+    assert kept.supported
+    assert "it predicts IP1-X, IP2-X on rms69.mcap slightly worse" in kept.statement
+
+
 @pytest.mark.parametrize("seed", [0, 1])
 def test_unsupported_basis_gives_the_linear_fit_modes(seed):
     """A linear chain fitted with a cubic basis: the answer's modes are the linear fit's,

@@ -227,9 +227,13 @@ class NestedTest:
                                f"{r['linear_fit_error_db']:+.1f} dB" for r in rows) + ")"
                            + (f", and on {', '.join(more)} (simulation.records)" if more
                               else ""))
-            small = (self.simulation or {}).get("worse_negligible") or []
+            sim = self.simulation or {}
+            records = sim.get("records") or [sim]   # each record's, not the first one's only
+            small = [", ".join(r["worse_negligible"]) + (
+                f" on {Path(str(r['record'])).name}" if len(records) > 1 and r.get("record")
+                else "") for r in records if r.get("worse_negligible")]
             if small:
-                checked += (f"; simulated, it predicts {', '.join(small)} slightly worse than "
+                checked += (f"; simulated, it predicts {'; '.join(small)} slightly worse than "
                             "the linear fit (each below 1 % of the linear fit's error energy: "
                             "see simulation)")
             return (f"the nonlinear terms are supported: noise-weighted residual {what} "
