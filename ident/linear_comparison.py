@@ -136,8 +136,9 @@ def _is_identified(identified: IdentInput, path: str) -> bool:
 def _simulated_on_one(session: IdentSession, model: StateSpaceModel,
                       linear_model: StateSpaceModel, validation: IdentInput | None = None,
                       part: IdentInput | None = None) -> dict:
-    """The nonlinear model and the linear fit simulated on the session's own record (or on
-    ``validation``, another record), as ``fnsi-lab validate`` simulates another record:
+    """The nonlinear model and the linear fit simulated on one record: the session's own (or
+    ``part``, one of the records identified together, or ``validation``, another record),
+    as ``fnsi-lab validate`` simulates another record:
     harmonic balance over every line, the nonlinear forces reading the model's own motion
     (:mod:`ident.refine.validation`).
 

@@ -116,7 +116,7 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
         where every coefficient is identified.
     left_out : sequence of dict
         Elements an earlier pass left out because none of their coefficients is determined
-        (:func:`_without_undetermined`), reported with the answer.
+        (:func:`_undetermined_elements`), reported with the answer.
     searched_out : (sequence of dict, sequence of str)
         Elements an earlier pass's parameter search left out (their ``refused`` entries)
         and its warnings, reported with the answer (the pass run again has no search).
@@ -234,7 +234,7 @@ def _before_the_reduction(session: IdentSession, fit: Fit, nested: NestedTest,
     The reduction only removes poles judged spurious; when it leaves a model that explains
     the record worse than the linear fit, it removed what the nonlinear terms needed
     (aircraft-like GVT, Jenkins element at 40 N, another multisine realisation: reduced
-    from order 30 to 18, residual 1.69x the linear fit's; the order-30 model 6.7x below it,
+    from order 30 to 18, residual 1.69x the linear fit's; the order-30 model 6.9x below it,
     and 12-13 dB better than the linear fit on a record at 69 N; bench/RESULTS.md).
     """
     auto = fit.auto
