@@ -78,9 +78,9 @@ def simulated_against_linear(session: IdentSession, model: StateSpaceModel,
                              validation: IdentInput | Sequence[IdentInput] | None = None
                              ) -> dict:
     """The nonlinear model and the linear fit simulated on the record (or records) the
-    check reads: the ``validation`` records when given, else each record identified
-    together (several records at once: each on its own, not pooled), else the record
-    itself (:func:`_simulated_on_one`).
+    check reads: each record identified together (several records at once: each on its
+    own, not pooled) and the ``validation`` records; with neither, the record itself
+    (:func:`_simulated_on_one`).
 
     A model that predicts one record better and another worse is no answer for both: the
     check fails on the first record where an output is predicted worse or no steady state
@@ -98,13 +98,13 @@ def simulated_against_linear(session: IdentSession, model: StateSpaceModel,
     """
     others = ([] if validation is None else [validation] if isinstance(validation, IdentInput)
               else list(validation))
-    if others:
-        checks = [_simulated_on_one(session, model, linear_model, validation=v) for v in others]
-    elif len(session.input.parts) >= 2:
-        checks = [_simulated_on_one(session, model, linear_model, part=part)
-                  for part in _parts(session.input)]
-    else:
+    parts = _parts(session.input) if len(session.input.parts) >= 2 else []
+    if not others and not parts:
         return _simulated_on_one(session, model, linear_model)
+    # records identified together are each checked, and the validation records as well
+    checks = [_simulated_on_one(session, model, linear_model, part=part) for part in parts]
+    checks += [_simulated_on_one(session, model, linear_model, validation=v) for v in others
+               if not (parts and v.path and _is_identified(session.input, str(v.path)))]
     failed = [c for c in checks if not c["converged"] or c["worse"]]
     deciding = failed[0] if failed else checks[0]
     keys = ("record", "own", "converged", "reason", "worse", "worse_negligible", "outputs")

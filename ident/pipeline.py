@@ -187,11 +187,12 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
         answer = Fit(model, fit.method, fit.auto, fit.decomposition)
         if (compare == "auto" and validation is None and verdicts
                 and all(v == "identified" for v in verdicts)
-                and answer_modes(answer, output_error)):
+                and answer_modes(answer, output_error) and len(session.input.parts) < 2):
             # every coefficient determined: the test would only confirm it (chain, SmallSat,
             # Silverbox); it costs a second identification (docs/ident.md). Not for an answer
             # without a physical mode: a degenerate order can make any coefficient look
-            # determined (GVT at 26 N, another realisation: order 1, no mode, "identified")
+            # determined (GVT at 26 N, another realisation: order 1, no mode, "identified").
+            # Nor for several records: each must be predicted no worse (docs/ident.md)
             from fnsi_lab.ident.robust.nested import weighted_residual
 
             session.evidence["nonlinear_vs_linear"] = {

@@ -169,3 +169,20 @@ def test_validation_on_the_levels_below_and_above(six_levels):
     assert nvl["decision"] == "linear"
     assert Path(nvl["simulation"]["record"]).name == "indep-rms20.npz"
     assert "the validation record indep-rms20.npz" in nvl["statement"]
+
+
+def test_several_records_and_a_validation_record_are_all_checked(six_levels):
+    """``ident 6 10 --validation 20``: the two identified records are checked each on its
+    own as well as the validation record. The model predicts 20 N no worse than the linear
+    fit, which alone had kept it, but its own 6 N record worse (bracket and box), so the
+    answer is the linear fit."""
+    proc = _cli(["ident", "indep-rms6.npz", "indep-rms10.npz", "--config",
+                 "indep-jenkins.yaml", "--auto", "--validation", "indep-rms20.npz",
+                 "--json", "both.json", "--quiet"], six_levels)
+    assert proc.returncode == 0, proc.stderr
+    nvl = json.loads((six_levels / "both.json").read_text())["nonlinear_vs_linear"]
+    records = nvl["simulation"]["records"]
+    assert [(Path(r["record"]).name, r["own"]) for r in records] == [
+        ("indep-rms6.npz", True), ("indep-rms10.npz", True), ("indep-rms20.npz", False)]
+    assert records[0]["worse"] and nvl["decision"] == "linear"
+    assert Path(nvl["simulation"]["record"]).name == "indep-rms6.npz"
