@@ -606,3 +606,21 @@ def test_an_element_the_search_left_out_is_still_reported_after_another_pass(tmp
     assert [r["name"] for r in doc["nonlinear_vs_linear"]["refused"]] == ["gap", "cub"]
     assert any("nonlinearity 'gap'" in w for w in doc["warnings"])
     assert any("'cub' left out" in w for w in doc["warnings"])
+
+
+def test_the_report_says_which_model_answers_and_why():
+    """The HTML report's summary table (viewer.report.summary_rows) carries the full model's
+    reason and the model before the reduction's statement, as the terminal does."""
+    from fnsi_lab.viewer.report import summary_rows
+
+    result = {"order": 30, "final": "full",
+              "final_reason": "the reduced model at order 18 did not pass the nested test "
+                              "against the linear fit, the model it came from did",
+              "nonlinear_vs_linear": {"statement": "the nonlinear terms are supported",
+                                      "before_reduction": None}}
+    rows = dict(summary_rows(result))
+    assert "did not pass the nested test" in rows["answer"] and "order 30" in rows["answer"]
+    result = {"order": 14, "nonlinear_vs_linear": {
+        "statement": "not supported", "before_reduction": {"order": 30, "statement": "worse"}}}
+    rows = dict(summary_rows(result))
+    assert rows["model before the reduction (order 30)"] == "worse"

@@ -174,9 +174,16 @@ def summary_rows(result: Mapping[str, Any]) -> list[tuple[str, str]]:
             if c.get("verdict"):
                 text += f"; {c['verdict']}"
             rows.append((f"{c['name']}, {label}", text))
-    statement = (result.get("nonlinear_vs_linear") or {}).get("statement")
-    if statement:   # is the nonlinear answer the answer? (docs/ident.md)
-        rows.append(("nonlinear vs linear", str(statement)))
+    nvl = result.get("nonlinear_vs_linear") or {}
+    if nvl.get("statement"):   # is the nonlinear answer the answer? (docs/ident.md)
+        rows.append(("nonlinear vs linear", str(nvl["statement"])))
+    before = nvl.get("before_reduction")
+    if before:                 # the full model was tested too, and failed
+        rows.append((f"model before the reduction (order {before.get('order')})",
+                     str(before.get("statement"))))
+    if result.get("final_reason"):   # the full model is the answer, and why
+        rows.append(("answer", f"the full model at order {result.get('order')}: "
+                               f"{result['final_reason']}"))
     return rows
 
 
