@@ -200,7 +200,7 @@ def _simulated_on_one(session: IdentSession, model: StateSpaceModel,
                          else ([], []))
     return {"method": sim.method, "record": name, "own": own,
             "converged": converged,
-            "several_records": " + " in str(session.input.path),
+            "several_records": len(session.input.parts) >= 2,
             "reason": None if converged else sim.info.get("reason"),
             "iterations": sim.info.get("iterations"), "outputs": rows,
             "worse": worse if converged else [],

@@ -29,6 +29,7 @@ from fnsi_lab import plain
 from fnsi_lab.ident.coefficient_summaries import (coefficient_summaries,
                                                   session_coefficient_spectra)
 from fnsi_lab.ident.config import IdentConfig
+from fnsi_lab.ident.core.basis import Nonlinearity
 from fnsi_lab.ident.core.coefficients import CoefficientSpectra
 from fnsi_lab.ident.core.io import IdentInput
 from fnsi_lab.ident.core.result import Coefficient, Mode
@@ -161,7 +162,8 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
     t2 = time.perf_counter()
     spectra = session_coefficient_spectra(session, model)
     session.timings_s["coefficients"] = time.perf_counter() - t2
-    undetermined = _undetermined_elements(session, spectra)
+    summaries = coefficient_summaries(spectra, session)   # the verdicts, read once
+    undetermined = _undetermined_elements(session.config.nonlinearities, summaries)
     if undetermined:   # identified again without them (docs/ident.md)
         spent = {**(spent_s or {}), "left_out_pass": time.perf_counter() - t0}
         return identify_request(
@@ -183,7 +185,7 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
             + ("no nonlinear element to check" if not session.config.nonlinearities
                else "compare_linear: false skips the nested test and its simulation check"))
     if session.config.nonlinearities and compare:
-        verdicts = [c.get("verdict") for c in coefficient_summaries(spectra, session)]
+        verdicts = [str(c.get("verdict")) for c in summaries]
         answer = Fit(model, fit.method, fit.auto, fit.decomposition)
         if (compare == "auto" and validation is None and verdicts
                 and all(v == "identified" for v in verdicts)
@@ -206,7 +208,7 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
             t3 = time.perf_counter()
             nested = compare_with_linear(
                 session, model, answer_modes(answer, output_error),
-                [c["verdict"] for c in coefficient_summaries(spectra, session)], order=order,
+                verdicts, order=order,
                 sweep=sweep, reduce_at=reduce_at, max_order=max_order, block_rows=block_rows,
                 validation=validation)
             if nested is not None and not nested.supported and output_error is None:
@@ -260,10 +262,12 @@ def _before_the_reduction(session: IdentSession, fit: Fit, nested: NestedTest,
                                        reduced_statement=nested.statement)), spectra, test)
 
 
-def _undetermined_elements(session: IdentSession, spectra: CoefficientSpectra | None
+def _undetermined_elements(basis: Sequence[Nonlinearity], summaries: Sequence[dict]
                            ) -> list[dict]:
-    """The elements to leave out: those none of whose coefficients the data determine
-    (every verdict ``not identifiable``) while another element's are determined, as
+    """The elements of ``basis`` to leave out: those none of whose coefficients the data
+    determine (every verdict ``not identifiable`` in ``summaries``,
+    :func:`ident.coefficient_summaries.coefficient_summaries`) while another element's are
+    determined, as
     ``{name, kind, channels, parameters, reason}`` (the keys of
     ``nonlinear_vs_linear.refused``); empty otherwise.
 
@@ -274,10 +278,9 @@ def _undetermined_elements(session: IdentSession, spectra: CoefficientSpectra | 
     Left out, the model is the one the data support, as a basis parameter the data cannot
     tell leaves its element out (docs/ident.md, "When the data cannot tell").
     """
-    basis = session.config.nonlinearities
     if len(basis) < 2:
         return []
-    rows = {c["name"]: c for c in coefficient_summaries(spectra, session)}
+    rows = {c["name"]: c for c in summaries}
     verdicts = {nl.name: [rows[n].get("verdict") for n in nl.coefficient_names if n in rows]
                 for nl in basis}
     none = [nl for nl in basis

@@ -96,8 +96,8 @@ def compare_levels(records: Sequence[RecordAnalysis], *, max_shift: float = 0.5)
     # its 98 N reading 9.48 Hz was taken for the 10.6 Hz mode's, a -10.6 % "shift")
     last = [(r, recs[0]) for r in recs[0].resonances]
     for level, rec in enumerate(recs[1:], start=1):
-        mac = np.array([[_mac(_shape(seen, r.frequency_hz, common),
-                              _shape(rec, q.frequency_hz, common)) for q in rec.resonances]
+        now = [_shape(rec, q.frequency_hz, common) for q in rec.resonances]
+        mac = np.array([[_mac(_shape(seen, r.frequency_hz, common), shape) for shape in now]
                         for r, seen in last]).reshape(len(last), len(rec.resonances))
         pairs = _mutual_nearest([r.frequency_hz for r, _ in last],
                                 [q.frequency_hz for q in rec.resonances], max_shift,
