@@ -188,8 +188,9 @@ def stack_records(records: Sequence[IdentInput]) -> IdentInput:
     The records must share the sample rate, the period ``N``, the number of periods, the
     channels (by name; the first record's order), the output quantity and the excited lines
     (the same multisine grid; other phases are welcome). The transient periods are the
-    first record's (else the largest any record declares); a simulated record's ``truth``
-    is dropped (several truths, no one answer).
+    first record's (else the largest any record declares); the simulated records' ``truth``
+    is the first record's when they all hold the same elements (the basis a config-less
+    run uses), else dropped.
 
     Parameters
     ----------
@@ -200,7 +201,7 @@ def stack_records(records: Sequence[IdentInput]) -> IdentInput:
     -------
     IdentInput
         ``u`` (sum R_k, P, N, m), ``y`` (sum R_k, P, N, p); ``path`` joins the paths with
-        `` + ``.
+        `` + ``; ``parts`` holds each record's path and number of realisations.
 
     Raises
     ------
