@@ -318,7 +318,8 @@ def validate_model(result: Any, record: Any, *, method: str = "auto",
         row["unit"] = unit
     if not sim.info.get("converged", True):
         notes.append(f"the nonlinear model has no steady state on this record: "
-                     f"{sim.info.get('reason')}")
+                     f"{sim.info.get('reason')}; it does not carry to this record's force "
+                     f"(the linear columns still compare)")
     info = {"result": res_name, "record": rec_name, "band_hz": list(band),
             "output_quantity": quantity, "n_periods": n_periods, "transient_periods": transient,
             "n_realizations": int(R), "order": int(model.order),

@@ -574,8 +574,14 @@ class HarmonicBalance:
                     state._linear = replace(state._linear, loop_gain=loop_gain)
                 state.iterations = total
                 return state
-        raise BalanceError(f"the harmonic balance of the model did not converge "
-                           f"(residual {state.residual:.2g} after {state.iterations} iterations)")
+        first = ("the given first iterate" if guess is not None else
+                 "the measured motion" if start is None else "the previous solution")
+        tried = first + ("" if start is not None else ", nor from the linear response with "
+                         "the nonlinear forces switched on in steps")
+        tried = "from " + tried
+        raise BalanceError(f"the harmonic balance found no periodic steady state of the model "
+                           f"({tried}: relative residual {state.residual:.2g} left after "
+                           f"{state.iterations} Newton iterations)")
 
     def _newton(self, state: BalanceState, linear: np.ndarray, loop_gain: np.ndarray, basis,
                 scale: float, tolerance: float, max_iterations: int) -> bool:

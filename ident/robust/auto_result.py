@@ -286,6 +286,8 @@ def confidence_statement(separation_ratio: float, n_physical: int, disagreements
          "mode these periods barely resolve, or a disturbance; check its damping with longer "
          "periods)", unresolved),
         ("Dropped as mains hum (near-undamped at a 50/60 Hz harmonic)", hum),
+        ("Left out as one mode fitted twice (within 0.2 % in frequency of a stronger pole, "
+         "similar damping, the same shape)", disagreements.get("duplicate_modes", [])),
         ("Kept but within 2x of the detection limit", marginal),
     ]
     for text, freqs in named:
@@ -318,4 +320,5 @@ def confidence_statement(separation_ratio: float, n_physical: int, disagreements
             "unresolved": [float(f) for f in unresolved],
             "marginal_detection": [float(f) for f in marginal], "extra_in_answer": extra,
             "mains_hum": [float(f) for f in hum],
+            "duplicate_modes": [float(f) for f in disagreements.get("duplicate_modes", [])],
             "noise_source": src}

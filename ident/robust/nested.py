@@ -252,8 +252,9 @@ class NestedTest:
             sim = self.simulation or {}
             hint = ("" if sim.get("record") or sim.get("several_records") else
                     "; on its own record the linear fit is that level's best linear "
-                    "approximation: with other levels, --validation NEXT.mcap or several "
-                    "records at once ask whether the model carries (docs/ident.md)")
+                    "approximation: with other levels, --validation BELOW.mcap --validation "
+                    "ABOVE.mcap (the levels around it) or several records at once ask "
+                    "whether the model carries (docs/ident.md)")
             return (f"the nonlinear terms lower the noise-weighted residual ({what}, {test}) "
                     f"but the nonlinear model, simulated on {self._simulated_on}, {why}: the "
                     f"modes are the linear fit's (order {self.order_linear}){hint}")

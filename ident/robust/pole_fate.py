@@ -25,7 +25,8 @@ FATES: dict[str, tuple[str, str]] = {
     "rescued": ("physical (stabilisation)",
                 "below the MDI threshold but kept: fully stable across orders"),
     "split": ("split mode, left out",
-              "one pole of a close pair that the output-error refinement left out"),
+              "one pole of a close pair fitting the same mode twice, left out (by the "
+              "robust pipeline or the output-error refinement)"),
     "spurious": ("spurious by MDI", "below the MDI threshold: removed as spurious"),
     "not_detectable": ("not detectable",
                        "above the MDI threshold but dropped: it does not stand out of the "
@@ -53,7 +54,7 @@ def pole_fates(mdi_rows: Sequence[Mapping[str, Any]], confidence: Mapping[str, A
         The JSON's ``mdi`` rows (``frequency_hz``, ``in_band``, ``stable``, ``physical``).
     confidence : mapping or None
         The JSON's ``confidence`` (its lists ``below_residual``, ``vetoed_not_stabilised``,
-        ``rescued_by_stabilisation``, ``mains_hum``, frequencies in Hz).
+        ``rescued_by_stabilisation``, ``mains_hum``, ``duplicate_modes``, frequencies in Hz).
     left_out_hz : sequence of float
         Frequencies of the split modes the output-error refinement left out
         (``output_error.left_out[].frequency_hz``); matched within 0.5 %.
@@ -68,6 +69,7 @@ def pole_fates(mdi_rows: Sequence[Mapping[str, Any]], confidence: Mapping[str, A
     vetoed = conf.get("vetoed_not_stabilised") or []
     rescued = conf.get("rescued_by_stabilisation") or []
     hum = conf.get("mains_hum") or []
+    duplicate = conf.get("duplicate_modes") or []
     out = []
     for r in mdi_rows:
         f = float(r["frequency_hz"])
@@ -86,6 +88,8 @@ def pole_fates(mdi_rows: Sequence[Mapping[str, Any]], confidence: Mapping[str, A
             fate = "not_stabilised"
         elif _near(f, hum):
             fate = "mains_hum"
+        elif _near(f, duplicate):
+            fate = "split"
         else:
             fate = "spurious"
         out.append(fate)
