@@ -40,6 +40,22 @@ class NotIdentifiableError(IdentError):
         self.element = element
 
 
+class DeadBasisError(IdentError):
+    """Basis functions identically zero on the data: their element never acts on the record
+    (a clearance larger than the motion, or wrong channels).
+
+    Parameters
+    ----------
+    message : str
+    dead : sequence of str
+        The coefficient names of the zero basis functions.
+    """
+
+    def __init__(self, message: str, *, dead: tuple[str, ...] = ()) -> None:
+        super().__init__(message)
+        self.dead = tuple(dead)
+
+
 class NoExcitedLineError(IdentError, WorkFailedError):
     """The processed band holds no excited line: no model can be driven there (exit 1).
 

@@ -19,7 +19,7 @@ import numpy as np
 from fnsi_lab import plain
 from fnsi_lab.ident.core.basis import Nonlinearity
 from fnsi_lab.ident.config import IdentConfig
-from fnsi_lab.ident.errors import (IdentError, IdentWarning, NoExcitedLineError,
+from fnsi_lab.ident.errors import (DeadBasisError, IdentError, IdentWarning, NoExcitedLineError,
                                    NotIdentifiableError)
 from fnsi_lab.ident.core.io import IdentInput, select_channels
 from fnsi_lab.ident.refine.parameter_search import (DEFAULT_SEARCH_ORDER, ParameterSearchResult,
@@ -160,13 +160,12 @@ def prepare_session(inp: IdentInput, cfg: IdentConfig, *, search_order: int | No
     quantity = cfg.output_quantity or inp.output_quantity or "displacement"
     unknown = has_unknown_parameters(cfg.nonlinearities)
     knots = needs_knots(cfg.nonlinearities)   # spline knot counts: placed on the motion
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", IdentWarning)
-        data = prepare_frequency_data(
+    def prepare(basis: Sequence[Nonlinearity]) -> FrequencyData:
+        return prepare_frequency_data(
             u=inp.u, y=inp.y, sample_rate_hz=inp.sample_rate_hz,
             samples_per_period=inp.samples_per_period,
-            basis=() if unknown or knots else cfg.nonlinearities,
-            motion_for=(cfg.nonlinearities if unknown or knots else ()) + tuple(motion_for),
+            basis=() if unknown or knots else basis,
+            motion_for=(tuple(basis) if unknown or knots else ()) + tuple(motion_for),
             band_hz=cfg.band_hz,
             transient_periods=(cfg.transient_periods if cfg.transient_periods is not None
                                else inp.transient_periods),
@@ -177,6 +176,25 @@ def prepare_session(inp: IdentInput, cfg: IdentConfig, *, search_order: int | No
             time_base=cfg.time_base, bilinear_period_s=cfg.bilinear_period_s,
             basis_oversample=basis_oversample or cfg.basis_oversample,
             integration_min_snr=cfg.integration_min_snr or None)
+
+    evidence: dict[str, Any] = {}
+    left_out: list[str] = []   # elements the data cannot tell, when others are kept
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", IdentWarning)
+        try:
+            data = prepare(cfg.nonlinearities)
+        except DeadBasisError as exc:
+            never = _never_acting(cfg.nonlinearities, exc) if refused_as_linear else ()
+            if not never:
+                raise
+            kept = tuple(nl for nl in cfg.nonlinearities if nl.name not in dict(never))
+            evidence["nonlinear_vs_linear"] = refused_search_evidence(
+                cfg.nonlinearities, kept, never, test="the measured motion")
+            if kept:   # else the statement is the answer's own line
+                left_out.append(evidence["nonlinear_vs_linear"]["statement"])
+            cfg = replace(cfg, nonlinearities=kept)
+            caught.clear()   # the first pass's warnings named the elements left out
+            data = prepare(kept)
     if not np.any(data.excited):  # poles fitted to undriven lines would be no answer
         raise NoExcitedLineError(no_excited_line(data))
     weighted = cfg.weighting != "none"
@@ -193,8 +211,6 @@ def prepare_session(inp: IdentInput, cfg: IdentConfig, *, search_order: int | No
             data = with_basis(data, cfg.nonlinearities)
     timings = {"prepare": time.perf_counter() - t0}
     search = None
-    evidence: dict[str, Any] = {}
-    left_out: list[str] = []   # elements the data cannot tell, when others are kept
     if unknown:  # the one place where 'auto' basis parameters become numbers
         t1 = time.perf_counter()
         bar = Progress(2, "basis parameters", enabled=bool(progress))
@@ -204,8 +220,9 @@ def prepare_session(inp: IdentInput, cfg: IdentConfig, *, search_order: int | No
             d_zero=cfg.d_zero_for(quantity), weighted=weighted,
             select_order=select_search_order, progress=lambda note: bar.update(1, note=note))
         if refusals:
-            evidence["nonlinear_vs_linear"] = refused_search_evidence(
-                cfg.nonlinearities, kept, refusals)
+            evidence["nonlinear_vs_linear"] = _merge_refusals(
+                evidence.get("nonlinear_vs_linear"),
+                refused_search_evidence(cfg.nonlinearities, kept, refusals))
             if kept:   # else the statement is the answer's own line
                 left_out.append(evidence["nonlinear_vs_linear"]["statement"])
         cfg = replace(cfg, nonlinearities=kept)
@@ -265,8 +282,40 @@ def _search_or_leave_out(data: FrequencyData, nonlinearities: Sequence[Nonlinear
     return None, pending, refusals
 
 
+def _never_acting(basis: Sequence[Nonlinearity], exc: DeadBasisError
+                  ) -> list[tuple[str, str]]:
+    """``(element name, reason)`` of the elements all of whose basis functions are zero on
+    the data (``exc.dead``); empty when an element is zero on one side only (a clearance
+    given on one side that the motion never closes: the configuration is to be mended, not
+    guessed)."""
+    dead = set(exc.dead)
+    never, partly = [], False
+    for nl in basis:
+        zero = [n for n in nl.coefficient_names if n in dead]
+        if zero and len(zero) < len(nl.coefficient_names):
+            partly = True
+        elif zero:
+            never.append((nl.name, f"nonlinearity {nl.name!r} never acts on this record: its "
+                          f"basis functions {plain.names(zero, quote=True)} are identically "
+                          "zero on the measured motion (a clearance larger than the motion, or "
+                          "wrong channels)"))
+    return [] if partly else never
+
+
+def _merge_refusals(before: Mapping[str, Any] | None, now: dict[str, Any]) -> dict[str, Any]:
+    """The parameter search's refusals after elements left out for never acting: one
+    ``refused`` list, both statements."""
+    if not before:
+        return now
+    merged = dict(now)
+    merged["refused"] = [*before.get("refused", []), *now.get("refused", [])]
+    merged["statement"] = f"{before['statement']}; {now['statement']}"
+    return merged
+
+
 def refused_search_evidence(requested: Sequence[Nonlinearity], kept: Sequence[Nonlinearity],
-                            refusals: Sequence[tuple[str, str]]) -> dict[str, Any]:
+                            refusals: Sequence[tuple[str, str]], *,
+                            test: str = "parameter search") -> dict[str, Any]:
     """The answer's ``nonlinear_vs_linear`` when the parameter search refused: which
     elements were left out and why, in the nested test's keys (docs/ident.md).
 
@@ -278,6 +327,8 @@ def refused_search_evidence(requested: Sequence[Nonlinearity], kept: Sequence[No
         Those identified all the same.
     refusals : sequence of (element name, reason)
         The search's refusal of each element left out, one line each.
+    test : str
+        What refused them, in words (the ``test`` key).
     """
     reasons = dict(refusals)
     left_out = [nl for nl in requested if nl.name in reasons]
@@ -286,9 +337,8 @@ def refused_search_evidence(requested: Sequence[Nonlinearity], kept: Sequence[No
             if kept else "the answer is the linear fit")
     statement = (f"not identifiable from these data: "
                  f"{'; '.join(dict.fromkeys(reasons.values()))}; {names} left out, {rest}")
-    out: dict[str, Any] = (linear_answer_evidence("parameter search", statement) if not kept
-                           else {"test": "parameter search", "decision": None,
-                                 "statement": statement})
+    out: dict[str, Any] = (linear_answer_evidence(test, statement) if not kept
+                           else {"test": test, "decision": None, "statement": statement})
     out["refused"] = [{"name": nl.name, "kind": nl.kind, "channels": dict(nl.channels),
                        "parameters": [u.parameter for u in nl.unknown],
                        "reason": reasons[nl.name]} for nl in left_out]

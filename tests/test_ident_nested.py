@@ -178,3 +178,45 @@ def test_an_output_far_below_the_others_does_not_veto():
            row("payload", 0.09 * 10 ** (-4.8 / 20), 0.09 * 10 ** (-7.3 / 20))]
     assert worse_outputs(gvt) == (["payload"], [])
     assert worse_outputs([row("y", None, 1.0)]) == ([], [])
+
+
+STOP_NEVER_REACHED = {"name": "stop", "kind": "trilinear", "clearances": [1.0, 1.0],  # m
+                      "channels": {"X2": 1, "X3": -1}}
+
+
+def test_an_element_that_never_acts_is_left_out_and_the_others_identified():
+    """A stop whose clearance (1 m) the motion (~1e-4 m) never closes has zero basis
+    functions: it used to stop the identification (exit 2, no answer); it is left out, said,
+    and the cubic spring is identified as without it."""
+    cfg = {**CUBIC, "nonlinearities": [*CUBIC["nonlinearities"], STOP_NEVER_REACHED]}
+    r = fnsi_lab.identify(arrays("cubic", 5.0, 0), cfg, order=6).to_json()
+    alone = fnsi_lab.identify(arrays("cubic", 5.0, 0), CUBIC, order=6).to_json()
+    assert [c["name"] for c in r["coefficients"]] == ["knl"]
+    # the same identification as without the stop: the same data, the same basis
+    assert r["coefficients"][0]["value"] == pytest.approx(alone["coefficients"][0]["value"],
+                                                          rel=1e-9)
+    refused = r["nonlinear_vs_linear"]["refused"]
+    assert [e["name"] for e in refused] == ["stop"]
+    assert "never acts on this record" in refused[0]["reason"]
+    assert any("'stop' left out" in w for w in r["warnings"])
+
+
+def test_only_elements_that_never_act_give_the_linear_answer():
+    r = fnsi_lab.identify(arrays("cubic", 5.0, 0),
+                          {**CUBIC, "nonlinearities": [STOP_NEVER_REACHED]}, order=6).to_json()
+    nvl = r["nonlinear_vs_linear"]
+    assert nvl["decision"] == "linear" and nvl["test"] == "the measured motion"
+    assert r["coefficients"] == []
+    assert "'stop' left out, the answer is the linear fit" in nvl["statement"]
+    assert len(r["modes"]) == 3     # the 3-DOF chain's modes, from the linear model
+
+
+def test_an_element_zero_on_one_side_only_is_still_refused():
+    """One clearance never closed, the other touched: a configuration to mend (a one-sided
+    element), not an element to leave out."""
+    from fnsi_lab.ident.errors import DeadBasisError
+
+    one_side = {**STOP_NEVER_REACHED, "clearances": [1.0, 1.0e-6]}
+    with pytest.raises(DeadBasisError, match="'stop:neg'"):
+        fnsi_lab.identify(arrays("cubic", 5.0, 0), {**CUBIC, "nonlinearities": [one_side]},
+                          order=6)

@@ -15,7 +15,7 @@ import numpy as np
 from fnsi_lab import plain
 from fnsi_lab.ident.core.basis import Nonlinearity, coefficient_names, evaluate_basis
 from fnsi_lab.ident.core.frequency_data import BasisMotion, FrequencyData
-from fnsi_lab.ident.errors import IdentError
+from fnsi_lab.ident.errors import DeadBasisError, IdentError
 
 
 def basis_spectra(basis: Sequence[Nonlinearity], motion: BasisMotion) -> tuple[np.ndarray, np.ndarray]:
@@ -61,8 +61,9 @@ def with_basis(data: FrequencyData, basis: Sequence[Nonlinearity]) -> FrequencyD
     Raises
     ------
     IdentError
-        No motion kept, a channel of ``basis`` not measured, or a basis function identically
-        zero on these data.
+        No motion kept, or a channel of ``basis`` not measured.
+    DeadBasisError
+        A basis function identically zero on these data.
     """
     from dataclasses import replace
 
@@ -83,9 +84,9 @@ def with_basis(data: FrequencyData, basis: Sequence[Nonlinearity]) -> FrequencyD
     names = coefficient_names(basis)
     if np.any(rms_h == 0):
         dead = [n for n, v in zip(names, rms_h) if v == 0]
-        raise IdentError(f"basis functions {plain.names(dead, quote=True)} are identically zero "
-                         "on these data "
-                         "(clearance larger than the motion, or wrong channels)")
+        raise DeadBasisError(f"basis functions {plain.names(dead, quote=True)} are identically "
+                             "zero on these data "
+                             "(clearance larger than the motion, or wrong channels)", dead=dead)
     sigma = np.concatenate([np.ones(m), motion.force_rms / rms_h])
     E = np.concatenate([data.E[:, :m], H * sigma[m:]], axis=1)
     return replace(data, E=E, input_scale=sigma, basis_names=names)
