@@ -85,5 +85,66 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-if __name__ == "__main__":
+def _modes(result: dict) -> list[float]:
+    return sorted(m["frequency_hz"] for m in result.get("modes") or [])
+
+
+def _worst_shift_percent(modes: list[float], reference: list[float]) -> tuple[float, int]:
+    """Largest |shift| (%) of each reference mode to the nearest answer mode; count of lost (> 5 %)."""
+    worst, lost = 0.0, 0
+    for f in reference:
+        if not modes:
+            lost += 1
+            continue
+        shift = min(abs(m - f) / f * 100 for m in modes)
+        if shift > 5:
+            lost += 1
+        else:
+            worst = max(worst, shift)
+    return worst, lost
+
+
+def summary(d: Path) -> str:
+    """The judgement table (markdown) from DIR/judge/*.json."""
+    out = d / "judge"
+    runs = json.loads((out / "runs.json").read_text())["runs"] if (out / "runs.json").exists() else []
+    rows = ["| level | config | s | answer | order | coefficients (value, rel. std, verdict) | modes vs linear fit: worst shift %, lost | validation dB (drive/jointL/jointR/far) | vs linear fit dB |",
+            "|---|---|---|---|---|---|---|---|---|"]
+    defects = []
+    for entry in runs:
+        stem = f"{Path(entry['level']).stem}-{entry['config']}"
+        if entry["rc"] != 0:
+            rows.append(f"| {entry['level']} | {entry['config']} | {entry['seconds']} | **exit {entry['rc']}** | | | | | |")
+            continue
+        result = json.loads((out / f"{stem}.json").read_text())
+        linear = json.loads((out / f"{Path(entry['level']).stem}-linear.json").read_text())
+        nvl = result.get("nonlinear_vs_linear") or {}
+        answer = "linear fit" if nvl.get("decision") == "linear" else ("nonlinear" if result.get("coefficients") else "-")
+        coefs = []
+        for c in result.get("coefficients") or []:
+            rel = c.get("relative_std")
+            coefs.append(f"{c['name']} {c['value']:.3g} ({rel:.2f}, {c.get('verdict')})" if rel is not None
+                         else f"{c['name']} {c['value']:.3g} ({c.get('verdict')})")
+            if c.get("verdict") == "identified" and rel is not None and rel > 0.5:
+                defects.append(f"{stem}: {c['name']} identified with relative std {rel:.2f}")
+        worst, lost = _worst_shift_percent(_modes(result), _modes(linear))
+        val, ref = out / f"{stem}.val.json", out / f"{Path(entry['level']).stem}-linear.val.json"
+        dbs = delta = ""
+        if val.exists() and ref.exists():
+            v, r = json.loads(val.read_text()), json.loads(ref.read_text())
+            # a linear result has no nonlinear error: its linear model's is the answer's
+            e = [o["error_db"] if o["error_db"] is not None else o["linear_error_db"] for o in v["outputs"]]
+            el = [o["error_db"] if o["error_db"] is not None else o["linear_error_db"] for o in r["outputs"]]
+            dbs = " / ".join(f"{x:.1f}" for x in e)
+            delta = " / ".join(f"{a - b:+.1f}" for a, b in zip(e, el))
+            if max(a - b for a, b in zip(e, el)) > 0.5:
+                defects.append(f"{stem}: validation worse than the linear fit by {max(a - b for a, b in zip(e, el)):.1f} dB")
+        rows.append(f"| {entry['level'][len('beam-rms'):-4]} N | {entry['config']} | {entry['seconds']} | {answer} | "
+                    f"{result.get('order')} | {'; '.join(coefs)} | {worst:.2f}, {lost} | {dbs} | {delta} |")
+    return "\n".join(rows) + "\n\n" + "\n".join(f"- {x}" for x in defects)
+
+
+if __name__ == "__main__" and "--summary" in sys.argv:
+    print(summary(Path(sys.argv[sys.argv.index("--summary") + 1])))
+elif __name__ == "__main__":
     sys.exit(main())
