@@ -75,3 +75,10 @@ def test_analyse_calls_the_lowest_level_linear_and_the_joint_level_nonlinear(rec
     verdicts = {Path(r["input"]).name: [o["verdict"] for o in r["outputs"]] for r in report["records"]}
     assert all(v.startswith("linear") for v in verdicts["beam-rms0.002.npz"])
     assert all(v.startswith("nonlinear") for v in verdicts["beam-rms0.3.npz"])
+    # the multisine is full-grid 3-140 Hz (2193 lines); at 0.3 N the measured force carries
+    # the joint's distortion 20-30 dB below the multisine near the 176 Hz mode beyond the
+    # band: it is not excitation (it was taken for 61 excited lines up to 175.6 Hz)
+    for record in report["records"]:
+        assert record["excitation"]["grid"] == "full"
+        assert record["excitation"]["n_excited"] == 2193
+        assert record["excitation"]["excited_band_hz"] == [3.0, 140.0]

@@ -19,7 +19,12 @@ grid (every line, odd lines, or every ``s``-th line from an offset) filling a ba
 3. runs: candidates on the grid form runs (gaps of at most two grid steps); runs shorter
    than ``min_run`` lines are not a band (hum landing on the grid outside the band), nor
    are runs shorter than ``4 min_run`` whose peak sits at a mains harmonic and stands
-   ``mains_ratio`` above their median (the leakage skirt of strong hum);
+   ``mains_ratio`` above their median (the leakage skirt of strong hum), nor is a run
+   whose median power is ``faint_ratio`` (10 dB) below that of the longest run: a
+   multisine's bands are designed at one level, and such a run is the measured force's
+   own distortion beyond the band (a lightly damped mode above the band, seen through the
+   shaker-structure interaction: 20-30 dB below the multisine's level, above the 30 dB
+   threshold, on a beam with a hysteretic joint, bench/RESULTS_beam.md);
 4. mains: a candidate within ``mains_zone`` lines of a multiple of 50 or 60 Hz whose power
    departs by more than ``mains_ratio`` from the median of its run's lines within 20 grid
    steps (outside that zone) is hum (leakage at a band edge, or hum on top of a design
@@ -55,6 +60,9 @@ class ExcitationGrid:
     off_grid, isolated, mains : int ndarray
         Candidates rejected because they are off the grid, without excited neighbours, or at
         a mains harmonic without excited neighbours on both sides.
+    faint : int ndarray
+        Candidates in a run of grid lines whose median power is ``faint_ratio`` below the
+        longest run's (distortion in the measured force, not a designed band).
     source : str
         ``'detected'`` here; ``'given'`` when the caller supplied the lines.
     """
@@ -67,6 +75,7 @@ class ExcitationGrid:
     isolated: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
     mains: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
     source: str = "detected"
+    faint: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
 
     @property
     def kind(self) -> str:
@@ -88,7 +97,8 @@ class ExcitationGrid:
                 "n_candidates": int(self.n_candidates),
                 "rejected_off_grid_hz": [round(float(k) * df, 6) for k in self.off_grid],
                 "rejected_isolated_hz": [round(float(k) * df, 6) for k in self.isolated],
-                "rejected_mains_hz": [round(float(k) * df, 6) for k in self.mains]}
+                "rejected_mains_hz": [round(float(k) * df, 6) for k in self.mains],
+                "rejected_faint_hz": [round(float(k) * df, 6) for k in self.faint]}
 
 
 def best_grid(cand: np.ndarray, grid_fraction: float, max_step: int) -> tuple[int, int]:
@@ -106,7 +116,8 @@ def detect_excited_lines(drive_power: np.ndarray, sample_rate_hz: float,
                          samples_per_period: int, *, threshold: float = 1e-3,
                          grid_fraction: float = 0.9, max_step: int = 8,
                          min_run: int = 8, mains_hz: tuple[float, ...] = MAINS_HZ,
-                         mains_zone: float = 3.0, mains_ratio: float = 4.0) -> ExcitationGrid:
+                         mains_zone: float = 3.0, mains_ratio: float = 4.0,
+                         faint_ratio: float = 0.1) -> ExcitationGrid:
     """Excited lines of a multisine from the power spectrum of the measured drive.
 
     Parameters
@@ -137,6 +148,9 @@ def detect_excited_lines(drive_power: np.ndarray, sample_rate_hz: float,
         Such a line is hum when its power differs from the local design level (its run's
         lines within 20 grid steps, outside the zone) by more than this factor (a flat or
         smooth design has neighbours within a few dB).
+    faint_ratio : float
+        A run whose median power is below this fraction of the longest run's median is not
+        excitation (0.1: 10 dB; the force's distortion beyond the band sits 20-30 dB below).
 
     Returns
     -------
@@ -165,6 +179,16 @@ def detect_excited_lines(drive_power: np.ndarray, sample_rate_hz: float,
     run_size = np.bincount(run_id)
     keep = run_size[run_id] >= min_run
     isolated, cand, run_id = cand[~keep], cand[keep], run_id[keep]
+    # a run far below the longest run's level is the force's distortion, not a band
+    faint_run = np.zeros(cand.size, bool)
+    if cand.size:
+        run_ids = np.unique(run_id)
+        longest = run_ids[int(np.argmax([np.sum(run_id == r) for r in run_ids]))]
+        reference = float(np.median(pw[cand[run_id == longest]]))
+        for rid in run_ids:
+            sel = run_id == rid
+            faint_run[sel] = float(np.median(pw[cand[sel]])) < faint_ratio * reference
+    faint, cand, run_id = cand[faint_run], cand[~faint_run], run_id[~faint_run]
     df = float(sample_rate_hz) / N
     # a short run peaked at a mains harmonic is the hum's own leakage skirt, not a band
     hum_run = np.zeros(cand.size, bool)
@@ -196,4 +220,4 @@ def detect_excited_lines(drive_power: np.ndarray, sample_rate_hz: float,
     mains, cand = cand[~keep], cand[keep]
     return ExcitationGrid(lines=cand.astype(int), step=step, offset=offset,
                           n_candidates=int(np.sum(on) + off_grid.size), off_grid=off_grid,
-                          isolated=isolated, mains=mains)
+                          isolated=isolated, mains=mains, faint=faint)
