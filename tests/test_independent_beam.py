@@ -78,6 +78,11 @@ def test_analyse_calls_the_lowest_level_linear_and_the_joint_level_nonlinear(rec
     # the multisine is full-grid 3-140 Hz (2193 lines); at 0.3 N the measured force carries
     # the joint's distortion 20-30 dB below the multisine near the 176 Hz mode beyond the
     # band: it is not excitation (it was taken for 61 excited lines up to 175.6 Hz)
+    # input RMS about the mean: the 0.002 N record's load cell carries a DC offset of about
+    # twice its multisine (2 % of the 0.3 N level's RMS); measured force RMS 0.0021 N
+    truth = json.loads((records / "beam-rms0.002.truth.json").read_text())
+    low = next(r for r in report["records"] if Path(r["input"]).name == "beam-rms0.002.npz")
+    assert low["input_rms"] == pytest.approx(truth["run"]["measured_force_rms_n"], rel=0.02)
     for record in report["records"]:
         assert record["excitation"]["grid"] == "full"
         assert record["excitation"]["n_excited"] == 2193
