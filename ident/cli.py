@@ -254,6 +254,7 @@ def _print_auto_summary(res: Any, out=None, warnings: list | tuple = (),
     answer = "reduced" if res.final == "reduced" else "full"
     doc = result_json or {}
     linear = (doc.get("nonlinear_vs_linear") or {}).get("decision") == "linear"
+    statement = str((doc.get("nonlinear_vs_linear") or {}).get("statement") or "")
     final = {c["name"]: c for c in doc.get("coefficients") or []}
     which = f"the {answer} model at order {res.final_model.order}" + (
         f" ({res.final_reason or 'the reduction did not make the coefficients more consistent'})"
@@ -286,6 +287,8 @@ def _print_auto_summary(res: Any, out=None, warnings: list | tuple = (),
                                  if k in ("value", "verdict", "verdict_reason")}}
                 mark = (" <- the nonlinear model's (the answer is the linear fit)" if linear
                         else " <- answer")
+                if linear:
+                    c = {**c, "verdict_reason": _once(c.get("verdict_reason"), statement)}
             if mark and refined and not linear:
                 mark = " <- FNSI's answer, refined below"
             unit = coefficient_units.get(c["name"], "")
@@ -295,6 +298,14 @@ def _print_auto_summary(res: Any, out=None, warnings: list | tuple = (),
                   f"{verdict_text(c, reason=bool(mark))}", file=out)
     for w in warnings:
         print(f"  warning: {w}", file=out)
+
+
+def _once(reason: str | None, statement: str) -> str | None:
+    """A coefficient's verdict reason without the nested test's statement in front (the
+    summary prints that statement once, under "nonlinear vs linear"; the JSON keeps it)."""
+    if not reason or not statement or not reason.startswith(statement):
+        return reason
+    return "not kept, see nonlinear vs linear below" + reason[len(statement):]
 
 
 def _print_nested(res: dict, out=None) -> None:

@@ -220,3 +220,16 @@ def test_an_element_zero_on_one_side_only_is_still_refused():
     with pytest.raises(DeadBasisError, match="'stop:neg'"):
         fnsi_lab.identify(arrays("cubic", 5.0, 0), {**CUBIC, "nonlinearities": [one_side]},
                           order=6)
+
+
+def test_the_summary_prints_the_nested_statement_once():
+    """Each coefficient of a model that was not kept carries the nested statement in its JSON
+    verdict reason; the terminal prints the statement once ("nonlinear vs linear") and the
+    coefficient lines point to it, keeping their own reasons."""
+    from fnsi_lab.ident.cli import _once
+
+    statement = "the nonlinear terms are not supported by the data (...)"
+    own = "; its standard deviation over the excited lines is 139 % of the value"
+    assert _once(statement + own, statement) == "not kept, see nonlinear vs linear below" + own
+    assert _once("its spectrum departs", statement) == "its spectrum departs"
+    assert _once(None, statement) is None
