@@ -30,6 +30,36 @@ def test_select_order_consistent_is_argmin_over_the_gate():
     assert n2 == 8 and not gate2.any()
 
 
+def test_the_gate_only_chooses_among_orders_that_explain_the_data():
+    """A coefficient consistent only at an order whose model error is far above that at the
+    criterion's order is the basis column standing in for missing modes (aircraft-like GVT,
+    26 N, a cubic spring: order 3 against 31, V 22x, one mode of nine, "identified")."""
+    orders = [3, 10, 20, 31, 40]
+    v = np.array([0.55, 0.20, 0.03, 0.021, 0.02])           # relative model error V(n)
+    ic = v * np.array([1.0, 1.1, 1.5, 2.0, 2.6])          # argmin I at 31
+    stable = np.ones(5, bool)
+    rho = np.array([0.13, 12.0, 14.0, 19.0, 30.0])        # consistent at 3 only
+    n, _ = osel.select_order_consistent(orders, ic, stable, rho, spread_factor=3.0)
+    assert n == 3                                         # without the model error
+    n, gate = osel.select_order_consistent(orders, ic, stable, rho, spread_factor=3.0,
+                                           model_error=v)
+    # admissible: V <= 2 x 0.021 (orders 20, 31, 40); min rho there 14 -> gate 42: all
+    # three; argmin I among them = 31, the criterion's own order
+    assert n == 31 and gate.tolist() == [False, False, True, True, True]
+    # an order that explains the data as well keeps the gate's choice (the SmallSat case)
+    v_flat = np.array([0.03, 0.025, 0.022, 0.021, 0.02])
+    n, _ = osel.select_order_consistent(orders, ic, stable, rho, spread_factor=3.0,
+                                        model_error=v_flat)
+    # (every order within 2x of V at 31: the gate picks 3 as before)
+    assert n == 3
+    # noise-free: V decades apart but all far below 1 % of the output (the 3-channel
+    # SmallSat: 1e-6 to 2e-8): the gate still moves the order
+    v_tiny = np.array([1e-6, 5e-7, 1e-7, 2e-8, 1e-8])
+    n, _ = osel.select_order_consistent(orders, v_tiny, stable, rho, spread_factor=3.0,
+                                        model_error=v_tiny)
+    assert n == 3
+
+
 def test_mdl_penalty_grows_with_the_parameter_count():
     v = np.full(3, 1e-6)
     n = np.array([10, 30, 60])

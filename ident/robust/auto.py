@@ -287,7 +287,8 @@ def _select_order(data, orders, models, v, stable, ic_mask, ic_band, options, sp
                 rho[k] = spread(models[n])
         if np.any(np.isfinite(rho)):
             n_sel, consistent = osel.select_order_consistent(
-                orders, ic.value, ic.stable, rho, options.spread_factor)
+                orders, ic.value, ic.stable, rho, options.spread_factor,
+                model_error=ic.model_error)
             how = "consistent"
     return ic, n_sel, rho, consistent, how
 
