@@ -72,6 +72,16 @@ class SimulatedOutputs:
 #: asks 1e-9).
 BALANCE_TOLERANCE = 1e-6
 
+#: Where Newton does not reach ``BALANCE_TOLERANCE`` in its iterations, the balance is
+#: solved again to this residual before the model is said to have no steady state: an error
+#: of 1e-4 in the motion is 80 dB below it, and changes a validation error of -60 dB (better
+#: than any measured here) by under 0.1 dB. Hysteretic elements (``jenkins``) have a
+#: piecewise-linear force whose Newton iterations converge slowly: on the Bouc-Wen beam
+#: (bench/RESULTS_beam.md) a Jenkins model stopped at 4e-6 after 60 iterations and was
+#: called "no periodic steady state"; at 1e-4 it predicts the record 8-10 dB better than
+#: the linear fit. Models that reach 1e-6 keep their numbers.
+BALANCE_TOLERANCE_SLOW = 1e-4
+
 
 def balance_outputs(model: StateSpaceModel, basis: Sequence[Nonlinearity],
                     data: FrequencyData, band_hz: tuple[float, float]) -> SimulatedOutputs:
@@ -112,16 +122,23 @@ def balance_outputs(model: StateSpaceModel, basis: Sequence[Nonlinearity],
     bal = HarmonicBalance(data, basis)
     bal.background = np.zeros_like(bal.background)   # the model's motion only
     G = modal.transfer(bal.z, bal.low)
+    tolerance = BALANCE_TOLERANCE
     try:
-        state = bal.solve(G, tolerance=BALANCE_TOLERANCE, max_iterations=60)
-    except BalanceError as exc:
-        return SimulatedOutputs(f[keep], measured, None, linear, "harmonic balance",
-                                {"converged": False, "reason": str(exc),
-                                 "predicted_lines": int(bal.F0)})
+        state = bal.solve(G, tolerance=tolerance, max_iterations=60)
+    except BalanceError as strict:
+        tolerance = BALANCE_TOLERANCE_SLOW
+        try:
+            state = bal.solve(G, tolerance=tolerance, max_iterations=60)
+        except BalanceError as exc:
+            return SimulatedOutputs(f[keep], measured, None, linear, "harmonic balance",
+                                    {"converged": False, "reason": str(exc),
+                                     "reason_strict": str(strict),
+                                     "predicted_lines": int(bal.F0)})
     H = state.H[:, bal.data_index][:, keep]                          # (R, F_keep, s)
     nonlinear = linear + np.einsum("kps,rks->rkp", G_data[:, :, m:], H)
     info = {"converged": True, "iterations": int(state.iterations),
-            "residual": float(state.residual), "predicted_lines": int(bal.F0),
+            "residual": float(state.residual), "tolerance": tolerance,
+            "predicted_lines": int(bal.F0),
             "predicted_band_hz": [float(bal.K.min() * data.sample_rate_hz / data.samples_per_period),
                                   float(bal.K.max() * data.sample_rate_hz / data.samples_per_period)]}
     return SimulatedOutputs(f[keep], measured, nonlinear, linear, "harmonic balance", info)
