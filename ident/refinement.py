@@ -196,12 +196,12 @@ def refine(session: IdentSession, ident: Fit) -> Any:
     except IdentError as exc:
         decision["reason"] = f"not applied: {exc}"
         session.warnings.append(f"the output-error refinement was not applied ({exc}); "
-                                "the answer is FNSI's model")
+                                "the nonlinear model is FNSI's")
         return None
     session.timings_s["output_error"] = time.perf_counter() - t0
     if cfg.refine == "auto" and fit.misfit > MAX_MISFIT:
         decision["reason"] = (f"not kept: the refined model leaves {fit.misfit:.3g} noise "
-                              f"variances (above {MAX_MISFIT:g}); the answer is FNSI's model")
+                              f"variances (above {MAX_MISFIT:g}); the nonlinear model is FNSI's")
         decision["misfit"] = fit.misfit
         return None
     decision["applied"] = True
