@@ -163,3 +163,20 @@ def test_a_slowly_converging_balance_is_not_called_no_steady_state(tmp_path, bea
     assert slow.simulation.info["converged"] and slow.simulation.info["tolerance"] == 1e-4
     for a, b in zip(slow.to_json()["outputs"], rows):
         assert a["error_db"] == pytest.approx(b["error_db"], abs=0.1)
+
+
+def test_distortion_at_the_output_level_is_worded_without_a_signed_zero():
+    # the Bouc-Wen beam at 1 N: distortion beyond the band within 0.5 dB of the band's
+    # output read "-0 dB above the output"
+    from fnsi_lab.ident.core.distortion import _verdict
+    from fnsi_lab.ident.core.distortion_records import Evidence
+
+    def text(output_db: float) -> str:
+        hit = Evidence(kind="mixed", frequency_hz=172.0, band_hz=(170.0, 174.0), level_db=-20.0,
+                       noise_db=-80.0, output_db=output_db, p_value=1e-30, significant=True,
+                       in_band=False)
+        return _verdict([hit], True, True, None)[0]
+
+    assert "at the level of the output at 172 Hz" in text(-19.8)
+    assert "3 dB below the output" in text(-17.0)
+    assert "3 dB above the output" in text(-23.0)

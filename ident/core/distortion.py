@@ -102,7 +102,8 @@ def _verdict(evidence: list[Evidence], tested: bool, noise_measured: bool,
         where = (f"around {best.frequency_hz:.3g} Hz" if best.in_band
                  else f"at {best.frequency_hz:.3g} Hz (beyond the excited band; relative to "
                       "the band's output)")
-        rel = f"{below:.0f} dB below" if below >= 0.5 else f"{-below:.0f} dB above"
+        rel = (f"{below:.0f} dB below" if below >= 0.5 else f"{-below:.0f} dB above"
+               if below <= -0.5 else "at the level of")   # never "-0 dB above"
         parts.append(f"{w} {rel} the output {where}")
     text = "; ".join(parts)
     if noise_measured:
