@@ -127,6 +127,10 @@ def summary(d: Path) -> str:
                          else f"{c['name']} {c['value']:.3g} ({c.get('verdict')})")
             if c.get("verdict") == "identified" and rel is not None and rel > 0.5:
                 defects.append(f"{stem}: {c['name']} identified with relative std {rel:.2f}")
+        if len(coefs) > 3:   # a spline: its knots in one cell
+            rels = [c["relative_std"] for c in result["coefficients"] if c.get("relative_std") is not None]
+            verdicts = sorted({c.get("verdict") for c in result["coefficients"]})
+            coefs = [f"{len(coefs)} knots, rel. std {min(rels):.1f}-{max(rels):.1f}, {' / '.join(verdicts)}"]
         worst, lost = _worst_shift_percent(_modes(result), _modes(linear))
         val, ref = out / f"{stem}.val.json", out / f"{Path(entry['level']).stem}-linear.val.json"
         dbs = delta = ""
