@@ -9,11 +9,12 @@ from __future__ import annotations
 import warnings
 from dataclasses import replace
 from pathlib import Path
-from typing import Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
 from fnsi_lab import plain
+from fnsi_lab.progress import Progress
 from fnsi_lab.ident.core.fnsi import StateSpaceModel
 from fnsi_lab.ident.core.io import IdentInput
 from fnsi_lab.ident.core.periodic import FrequencyData, prepare_frequency_data, with_basis
@@ -33,14 +34,16 @@ def compare_with_linear(session: IdentSession, model: StateSpaceModel, modes: Se
                         reduce_at: int | None, max_order: int | None,
                         block_rows: int | None,
                         validation: IdentInput | Sequence[IdentInput] | None = None,
-                        linear: Identification | None = None) -> NestedTest | None:
+                        linear: Identification | None = None,
+                        progress: Any = None) -> NestedTest | None:
     """The linear fit of the same data (same orders, weighting, ``D`` choice, basis removed)
     and the nested test of the answer (``model``, its physical ``modes`` and coefficient
     ``verdicts``) against it (:mod:`ident.robust.nested`); None when the linear fit fails (its
     reason goes to the warnings). When the F-test supports the nonlinear terms, both models
     are simulated on the record, or on ``validation`` when given
     (:func:`simulated_against_linear`). ``linear``: that linear fit, already made (a second
-    model tested against it)."""
+    model tested against it). ``progress``: say on stderr which record is being simulated
+    (a hysteretic model's balance can take minutes)."""
     from fnsi_lab.ident.robust.nested import nested_test
 
     if linear is None:
@@ -69,14 +72,15 @@ def compare_with_linear(session: IdentSession, model: StateSpaceModel, modes: Se
                        verdicts=verdicts, linear=linear, evaluation=how)
     if test.supported:   # and does it predict its own record better? (docs/ident.md)
         test = test.require_simulation(
-            simulated_against_linear(session, model, linear.model, validation=validation))
+            simulated_against_linear(session, model, linear.model, validation=validation,
+                                     progress=progress))
     return test
 
 
 def simulated_against_linear(session: IdentSession, model: StateSpaceModel,
                              linear_model: StateSpaceModel,
-                             validation: IdentInput | Sequence[IdentInput] | None = None
-                             ) -> dict:
+                             validation: IdentInput | Sequence[IdentInput] | None = None,
+                             progress: Any = None) -> dict:
     """The nonlinear model and the linear fit simulated on the record (or records) the
     check reads: each record identified together (several records at once: each on its
     own, not pooled) and the ``validation`` records; with neither, the record itself
@@ -99,12 +103,26 @@ def simulated_against_linear(session: IdentSession, model: StateSpaceModel,
     others = ([] if validation is None else [validation] if isinstance(validation, IdentInput)
               else list(validation))
     parts = _parts(session.input) if len(session.input.parts) >= 2 else []
+    others = [v for v in others
+              if not (parts and v.path and _is_identified(session.input, str(v.path)))]
+    records: list[tuple[IdentInput | None, IdentInput | None]] = (
+        [(part, None) for part in parts] + [(None, v) for v in others] or [(None, None)])
+    bar = Progress(len(records), "simulation check", enabled=bool(progress))
+    checks = []
+    def name(k: int) -> str:
+        part, other = records[k]
+        shown = other if other is not None else part if part is not None else session.input
+        return Path(str(shown.path or "the record")).name
+
+    bar.update(0, note=f"{name(0)}: the nonlinear model's steady state ...")
+    for k, (part, other) in enumerate(records):
+        checks.append(_simulated_on_one(session, model, linear_model, part=part,
+                                        validation=other))
+        bar.update(1, note=f"{name(k)} done" + (f", {name(k + 1)} ..." if k + 1 < len(records)
+                                                 else ""))
     if not others and not parts:
-        return _simulated_on_one(session, model, linear_model)
+        return checks[0]
     # records identified together are each checked, and the validation records as well
-    checks = [_simulated_on_one(session, model, linear_model, part=part) for part in parts]
-    checks += [_simulated_on_one(session, model, linear_model, validation=v) for v in others
-               if not (parts and v.path and _is_identified(session.input, str(v.path)))]
     failed = [c for c in checks if not c["converged"] or c["worse"]]
     deciding = failed[0] if failed else checks[0]
     keys = ("record", "own", "converged", "reason", "worse", "worse_negligible", "outputs")

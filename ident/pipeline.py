@@ -210,9 +210,10 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
                 session, model, answer_modes(answer, output_error),
                 verdicts, order=order,
                 sweep=sweep, reduce_at=reduce_at, max_order=max_order, block_rows=block_rows,
-                validation=validation)
+                validation=validation, progress=progress)
             if nested is not None and not nested.supported and output_error is None:
-                before = _before_the_reduction(session, fit, nested, validation)
+                before = _before_the_reduction(session, fit, nested, validation,
+                                               progress=progress)
                 if before is not None:
                     fit, spectra, nested = before
                     model = fit.model
@@ -228,7 +229,8 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
 
 
 def _before_the_reduction(session: IdentSession, fit: Fit, nested: NestedTest,
-                          validation: IdentInput | Sequence[IdentInput] | None
+                          validation: IdentInput | Sequence[IdentInput] | None, *,
+                          progress: Any = None
                           ) -> tuple[Fit, CoefficientSpectra | None, NestedTest] | None:
     """The model the reduction came from, as the answer, when the data support its nonlinear
     terms against the same linear fit and not the reduced model's (nested test and
@@ -250,7 +252,7 @@ def _before_the_reduction(session: IdentSession, fit: Fit, nested: NestedTest,
         session, full.model, answer_modes(full),
         [c["verdict"] for c in coefficient_summaries(spectra, session)], order=None,
         sweep=(), reduce_at=None, max_order=None, block_rows=None, validation=validation,
-        linear=nested.linear)
+        linear=nested.linear, progress=progress)
     if test is None or not test.supported:
         if test is not None:   # said, not only done: the answer stays the linear fit
             session.evidence.setdefault("nonlinear_vs_linear", {})["before_reduction"] = {

@@ -233,3 +233,16 @@ def test_the_summary_prints_the_nested_statement_once():
     assert _once(statement + own, statement) == "not kept, see nonlinear vs linear below" + own
     assert _once("its spectrum departs", statement) == "its spectrum departs"
     assert _once(None, statement) is None
+
+
+def test_the_simulation_check_says_which_record_it_simulates(capsys):
+    """A hysteretic model's balance can take minutes: with progress on, stderr names each
+    record of the simulation check as it goes (nothing with progress off)."""
+    other = arrays("cubic", 5.0, 1)
+    fnsi_lab.identify(arrays("cubic", 5.0, 0), {**CUBIC, "compare_linear": True}, order=6,
+                      progress=True, validation=other)
+    err = capsys.readouterr().err
+    assert "simulation check" in err and "done" in err
+    fnsi_lab.identify(arrays("cubic", 5.0, 0), {**CUBIC, "compare_linear": True}, order=6,
+                      validation=other)
+    assert "simulation check" not in capsys.readouterr().err
