@@ -86,7 +86,8 @@ def with_basis(data: FrequencyData, basis: Sequence[Nonlinearity]) -> FrequencyD
         dead = [n for n, v in zip(names, rms_h) if v == 0]
         raise DeadBasisError(f"basis functions {plain.names(dead, quote=True)} are identically "
                              "zero on these data "
-                             "(clearance larger than the motion, or wrong channels)", dead=tuple(dead))
+                             "(clearance larger than the motion, or wrong channels)",
+                             dead=tuple(dead))
     sigma = np.concatenate([np.ones(m), motion.force_rms / rms_h])
     E = np.concatenate([data.E[:, :m], H * sigma[m:]], axis=1)
     return replace(data, E=E, input_scale=sigma, basis_names=names)

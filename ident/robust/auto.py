@@ -472,7 +472,8 @@ def _duplicate_modes(md, lam: np.ndarray, c_hat: np.ndarray, physical: np.ndarra
     for a, b in zip(kept[:-1], kept[1:]):
         fa, fb = md.frequency_hz[a], md.frequency_hz[b]
         za, zb = abs(md.damping_ratio[a]), abs(md.damping_ratio[b])
-        if abs(fb - fa) > _DUPLICATE_FREQUENCY * fa or abs(za - zb) > _DUPLICATE_DAMPING * max(za, zb):
+        if (abs(fb - fa) > _DUPLICATE_FREQUENCY * fa
+                or abs(za - zb) > _DUPLICATE_DAMPING * max(za, zb)):
             continue
         va, vb = shape(a), shape(b)
         mac = abs(np.vdot(va, vb)) ** 2 / max(float(np.vdot(va, va).real * np.vdot(vb, vb).real),

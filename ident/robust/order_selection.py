@@ -47,7 +47,8 @@ IC_BANDS: tuple[str, ...] = ("auto", "processed", "excited")
 FEW_OUTPUTS = 8
 
 __all__ = ["InformationCriterion", "relative_model_error", "information_criterion",
-           "parameter_count", "ic_line_mask", "select_order", "select_order_consistent", "FIT_FACTOR", "FIT_FLOOR",
+           "parameter_count", "ic_line_mask", "select_order", "select_order_consistent",
+           "FIT_FACTOR", "FIT_FLOOR",
            "CRITERIA", "IC_BANDS", "FEW_OUTPUTS"]
 
 
