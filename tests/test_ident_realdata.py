@@ -74,6 +74,24 @@ def test_shaped_design_near_mains_is_kept():
     np.testing.assert_array_equal(g.lines, k)
 
 
+def test_a_band_after_a_force_drop_out_is_kept():
+    """A shaker's force drops by tens of dB at a lightly damped driving-point resonance and
+    may stay lower above it: the band after the drop-out is still excitation, only a faint
+    run far beyond the band (the force's own distortion) is not."""
+    N, fs = 4096, 1024.0
+    pw = np.full(N // 2 + 1, 1e-12)
+    pw[10:200] = 1.0
+    pw[200:203] = 1e-5            # 3 lines 50 dB down (below the 30 dB candidate level)
+    pw[203:300] = 0.05            # 13 dB lower above the resonance
+    g = detect_excited_lines(pw, fs, N)
+    np.testing.assert_array_equal(g.lines, np.r_[10:200, 203:300])
+    assert g.faint.size == 0
+    pw[400:420] = 0.005           # 23 dB down, 100 lines beyond the band's end
+    g = detect_excited_lines(pw, fs, N)
+    np.testing.assert_array_equal(g.faint, np.arange(400, 420))
+    np.testing.assert_array_equal(g.lines, np.r_[10:200, 203:300])
+
+
 # ------------------------------------------------------------------------ noise, hum, layout
 def test_noise_level_from_the_non_excited_lines():
     """One period per realisation: the off-grid lines give the noise variance of Y(k)."""

@@ -20,9 +20,10 @@ grid (every line, odd lines, or every ``s``-th line from an offset) filling a ba
    than ``min_run`` lines are not a band (hum landing on the grid outside the band), nor
    are runs shorter than ``4 min_run`` whose peak sits at a mains harmonic and stands
    ``mains_ratio`` above their median (the leakage skirt of strong hum), nor is a run
-   whose median power is ``faint_ratio`` (10 dB) below that of the longest run: a
-   multisine's bands are designed at one level, and such a run is the measured force's
-   own distortion beyond the band (a lightly damped mode above the band, seen through the
+   whose median power is ``faint_ratio`` (10 dB) below that of the longest run and that
+   lies more than a tenth of that run's width away from it: such a run is the measured
+   force's own distortion beyond the band (nearer, it is the band going on after a force
+   drop-out at a resonance) (a lightly damped mode above the band, seen through the
    shaker-structure interaction: 20-30 dB below the multisine's level, above the 30 dB
    threshold, on a beam with a hysteretic joint, bench/RESULTS_beam.md);
 4. mains: a candidate within ``mains_zone`` lines of a multiple of 50 or 60 Hz whose power
@@ -62,7 +63,7 @@ class ExcitationGrid:
         a mains harmonic without excited neighbours on both sides.
     faint : int ndarray
         Candidates in a run of grid lines whose median power is ``faint_ratio`` below the
-        longest run's (distortion in the measured force, not a designed band).
+        longest run's, away from it (distortion in the measured force, not a designed band).
     source : str
         ``'detected'`` here; ``'given'`` when the caller supplied the lines.
     """
@@ -179,15 +180,24 @@ def detect_excited_lines(drive_power: np.ndarray, sample_rate_hz: float,
     run_size = np.bincount(run_id)
     keep = run_size[run_id] >= min_run
     isolated, cand, run_id = cand[~keep], cand[keep], run_id[keep]
-    # a run far below the longest run's level is the force's distortion, not a band
+    # a run far below the longest run's level, and far from it, is the force's distortion
+    # beyond the band, not a band. Near it (a gap under a tenth of the longest run's width)
+    # it is the same band after a force drop-out: a shaker's force falls by tens of dB at a
+    # lightly damped driving-point resonance and may stay 10 dB lower above it (a 3-line
+    # drop-out before a band 13 dB lower had lost that band, silently)
     faint_run = np.zeros(cand.size, bool)
     if cand.size:
         run_ids = np.unique(run_id)
         longest = run_ids[int(np.argmax([np.sum(run_id == r) for r in run_ids]))]
-        reference = float(np.median(pw[cand[run_id == longest]]))
+        main = cand[run_id == longest]
+        reference = float(np.median(pw[main]))
+        near = max(0.1 * float(main[-1] - main[0]), 2.0 * step)
         for rid in run_ids:
             sel = run_id == rid
-            faint_run[sel] = float(np.median(pw[cand[sel]])) < faint_ratio * reference
+            run = cand[sel]
+            gap = max(float(run[0] - main[-1]), float(main[0] - run[-1]), 0.0)
+            faint_run[sel] = (float(np.median(pw[run])) < faint_ratio * reference
+                              and gap > near)
     faint, cand, run_id = cand[faint_run], cand[~faint_run], run_id[~faint_run]
     df = float(sample_rate_hz) / N
     # a short run peaked at a mains harmonic is the hum's own leakage skirt, not a band
