@@ -109,6 +109,7 @@ def simulated_against_linear(session: IdentSession, model: StateSpaceModel,
         [(part, None) for part in parts] + [(None, v) for v in others] or [(None, None)])
     bar = Progress(len(records), "simulation check", enabled=bool(progress))
     checks = []
+
     def name(k: int) -> str:
         part, other = records[k]
         shown = other if other is not None else part if part is not None else session.input

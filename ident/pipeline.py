@@ -186,10 +186,10 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
                else "compare_linear: false skips the nested test and its simulation check"))
     if session.config.nonlinearities and compare:
         verdicts = [str(c.get("verdict")) for c in summaries]
-        answer = Fit(model, fit.method, fit.auto, fit.decomposition)
+        modes = answer_modes(Fit(model, fit.method, fit.auto, fit.decomposition), output_error)
         if (compare == "auto" and validation is None and verdicts
                 and all(v == "identified" for v in verdicts)
-                and answer_modes(answer, output_error) and len(session.input.parts) < 2):
+                and modes and len(session.input.parts) < 2):
             # every coefficient determined: the test would only confirm it (chain, SmallSat,
             # Silverbox); it costs a second identification (docs/ident.md). Not for an answer
             # without a physical mode: a degenerate order can make any coefficient look
@@ -207,8 +207,7 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
         else:
             t3 = time.perf_counter()
             nested = compare_with_linear(
-                session, model, answer_modes(answer, output_error),
-                verdicts, order=order,
+                session, model, modes, verdicts, order=order,
                 sweep=sweep, reduce_at=reduce_at, max_order=max_order, block_rows=block_rows,
                 validation=validation, progress=progress)
             if nested is not None and not nested.supported and output_error is None:

@@ -183,7 +183,7 @@ def prepare_session(inp: IdentInput, cfg: IdentConfig, *, search_order: int | No
         warnings.simplefilter("always", IdentWarning)
         try:
             data = prepare(cfg.nonlinearities)
-        except DeadBasisError as exc:
+        except DeadBasisError as exc:   # only with a given basis: no search follows
             never = _never_acting(cfg.nonlinearities, exc) if refused_as_linear else ()
             if not never:
                 raise
@@ -220,9 +220,8 @@ def prepare_session(inp: IdentInput, cfg: IdentConfig, *, search_order: int | No
             d_zero=cfg.d_zero_for(quantity), weighted=weighted,
             select_order=select_search_order, progress=lambda note: bar.update(1, note=note))
         if refusals:
-            evidence["nonlinear_vs_linear"] = _merge_refusals(
-                evidence.get("nonlinear_vs_linear"),
-                refused_search_evidence(cfg.nonlinearities, kept, refusals))
+            evidence["nonlinear_vs_linear"] = refused_search_evidence(
+                cfg.nonlinearities, kept, refusals)
             if kept:   # else the statement is the answer's own line
                 left_out.append(evidence["nonlinear_vs_linear"]["statement"])
         cfg = replace(cfg, nonlinearities=kept)
@@ -300,17 +299,6 @@ def _never_acting(basis: Sequence[Nonlinearity], exc: DeadBasisError
                           "zero on the measured motion (a clearance larger than the motion, or "
                           "wrong channels)"))
     return [] if partly else never
-
-
-def _merge_refusals(before: Mapping[str, Any] | None, now: dict[str, Any]) -> dict[str, Any]:
-    """The parameter search's refusals after elements left out for never acting: one
-    ``refused`` list, both statements."""
-    if not before:
-        return now
-    merged = dict(now)
-    merged["refused"] = [*before.get("refused", []), *now.get("refused", [])]
-    merged["statement"] = f"{before['statement']}; {now['statement']}"
-    return merged
 
 
 def refused_search_evidence(requested: Sequence[Nonlinearity], kept: Sequence[Nonlinearity],

@@ -31,7 +31,7 @@ def _duplicates(modes):
     lam, c_hat, b_hat = _poles(modes)
     md = mdi_mod.modal_dominancy(lam, c_hat, b_hat, (1.0, 20.0))
     physical = np.ones(md.frequency_hz.size, bool)
-    dup = _duplicate_modes(md, lam, c_hat, physical, md.mdi)
+    dup = _duplicate_modes(md, c_hat, physical, md.mdi)
     return md, dup
 
 

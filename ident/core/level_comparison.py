@@ -97,8 +97,9 @@ def compare_levels(records: Sequence[RecordAnalysis], *, max_shift: float = 0.5)
     last = [(r, recs[0]) for r in recs[0].resonances]
     for level, rec in enumerate(recs[1:], start=1):
         now = [_shape(rec, q.frequency_hz, common) for q in rec.resonances]
-        mac = np.array([[_mac(_shape(seen, r.frequency_hz, common), shape) for shape in now]
-                        for r, seen in last]).reshape(len(last), len(rec.resonances))
+        before = [_shape(seen, r.frequency_hz, common) for r, seen in last]
+        mac = np.array([[_mac(b, shape) for shape in now]
+                        for b in before]).reshape(len(last), len(rec.resonances))
         pairs = _mutual_nearest([r.frequency_hz for r, _ in last],
                                 [q.frequency_hz for q in rec.resonances], max_shift,
                                 allowed=mac >= SAME_SHAPE_MAC if len(common) >= 2 else None)

@@ -521,7 +521,7 @@ class HarmonicBalance:
     # ------------------------------------------------------------------ the balance
     def solve(self, G: np.ndarray, *, basis=None, start: BalanceState | None = None,
               guess: np.ndarray | None = None, tolerance: float = 1e-9,
-              max_iterations: int = 40) -> BalanceState:
+              max_iterations: int = 40, acceptable: float | None = None) -> BalanceState:
         """The predicted motions of the model with transfer function ``G``.
 
         Parameters
@@ -539,6 +539,10 @@ class HarmonicBalance:
             motion's sensitivity to a parameter step).
         tolerance : float
             On ``||delta - Lambda G e(delta)|| / ||delta||``.
+        acceptable : float, optional
+            Where no attempt reaches ``tolerance``, the best iterate of the full model
+            (from the start, or the continuation's last step) is returned all the same when
+            its residual is at most this (hysteretic elements converge slowly).
 
         Raises
         ------
@@ -557,6 +561,7 @@ class HarmonicBalance:
             state._preconditioner = start._preconditioner
         if self._newton(state, linear, loop_gain, basis, scale, tolerance, max_iterations):
             return state
+        best = replace(state)        # the full model's best iterate so far
         if start is None:
             # continuation from the linear response: the nonlinear forces switched on in
             # steps (a model whose clearances the search put 10-15 % off had no steady state
@@ -568,12 +573,16 @@ class HarmonicBalance:
                                     tolerance if share == 1.0 else 1e-6, max_iterations)
                 total += state.iterations
                 if not done:
+                    if share == 1.0 and state.residual < best.residual:
+                        best = replace(state)
                     break
             else:
                 if state._linear is not None:   # the last share's linearisation, full gain
                     state._linear = replace(state._linear, loop_gain=loop_gain)
                 state.iterations = total
                 return state
+        if acceptable is not None and best.residual <= acceptable:
+            return best
         first = ("the given first iterate" if guess is not None else
                  "the measured motion" if start is None else "the previous solution")
         tried = first + ("" if start is not None else ", nor from the linear response with "

@@ -435,7 +435,7 @@ def _detection_gates(full, data, md, modal, sel, options) -> dict:
         at_mains |= (h >= 1) & (np.abs(md.frequency_hz - h * f_m) <= 3 * line_hz)
     hum = unresolved & at_mains
     physical &= ~hum
-    duplicate = _duplicate_modes(md, modal[1], modal[2], physical, sel["values"])
+    duplicate = _duplicate_modes(md, modal[2], physical, sel["values"])
     physical &= ~duplicate
     return {"physical": physical, "detection": detection, "undetectable": undetectable,
             "unresolved": unresolved, "hum": hum, "duplicate": duplicate}
@@ -446,11 +446,11 @@ def _detection_gates(full, data, md, modal, sel, options) -> dict:
 _DUPLICATE_FREQUENCY = 0.002
 #: ... with damping ratios within this fraction of the larger ...
 _DUPLICATE_DAMPING = 0.5
-#: ... and output shapes with at least this MAC are one mode fitted twice.
+#: ... and output shapes with at least this MAC(X) are one mode fitted twice.
 _DUPLICATE_MAC = 0.9
 
 
-def _duplicate_modes(md, lam: np.ndarray, c_hat: np.ndarray, physical: np.ndarray,
+def _duplicate_modes(md, c_hat: np.ndarray, physical: np.ndarray,
                      values: np.ndarray) -> np.ndarray:
     """The weaker pole of every kept pair that fits one mode twice, shape (q,) bool.
 
@@ -458,27 +458,21 @@ def _duplicate_modes(md, lam: np.ndarray, c_hat: np.ndarray, physical: np.ndarra
     (MAC >= 0.9) cannot be told apart by the data: their half-power bands overlap many times
     over. The subspace fit split one mode's residue between them (an independent Iwan-joint
     chain at 3 N: 6.678 and 6.683 Hz, MDI 0.70 and 81, one mode at 6.682 Hz in the truth).
-    The one of smaller MDI is left out; the reduction refits the other. ``lam``, ``c_hat``:
-    the poles and modal outputs :attr:`ModalDominancy.members` index. Pairs whose residues
+    The one of smaller MDI is left out; the reduction refits the other. ``c_hat``: the
+    modal outputs :attr:`ModalDominancy.members` index. Pairs whose residues
     cancel are grouped before the threshold instead (:func:`ident.robust.mdi.group_split_modes`).
     """
     duplicate = np.zeros(physical.size, bool)
     kept = [i for i in np.argsort(md.frequency_hz) if physical[i] and md.is_pair[i]]
-
-    def shape(i):   # the output shape of the pole with Im >= 0 (one side of the pair)
-        k = next(j for j in md.members[i] if lam[j].imag >= 0)
-        return c_hat[:, k]
-
     for a, b in zip(kept[:-1], kept[1:]):
         fa, fb = md.frequency_hz[a], md.frequency_hz[b]
         za, zb = abs(md.damping_ratio[a]), abs(md.damping_ratio[b])
         if (abs(fb - fa) > _DUPLICATE_FREQUENCY * fa
                 or abs(za - zb) > _DUPLICATE_DAMPING * max(za, zb)):
             continue
-        va, vb = shape(a), shape(b)
-        mac = abs(np.vdot(va, vb)) ** 2 / max(float(np.vdot(va, va).real * np.vdot(vb, vb).real),
-                                              1e-300)
-        if mac >= _DUPLICATE_MAC:
+        # the stabilisation diagram's shape measure (either pole of a pair: MACX does not
+        # see the conjugation)
+        if stab.macx(c_hat[:, md.members[a][0]], c_hat[:, md.members[b][0]]) >= _DUPLICATE_MAC:
             duplicate[a if values[a] < values[b] else b] = True
     return duplicate
 
