@@ -153,8 +153,12 @@ class Identification:
         if self.nested is not None and self.linear_answer and self.nested.linear is not None:
             return self.nested.linear.modes
         if "modes" not in self._cache:
-            self._cache["modes"] = answer_modes(
+            modes = answer_modes(
                 Fit(self.model, self.method, self.auto, self.decomposition), self.output_error)
+            gone = self.nested.left_out_hz if self.nested is not None else []
+            # an added mode without physical evidence is not the answer's (docs/robust.md)
+            self._cache["modes"] = [m for m in modes if not any(
+                abs(m.frequency_hz - g) <= 1e-6 * max(g, 1e-12) for g in gone)]
         return list(self._cache["modes"])
 
     @property

@@ -38,6 +38,7 @@ from fnsi_lab.ident.identification import Identification
 from fnsi_lab.ident.linear_comparison import compare_with_linear
 from fnsi_lab.ident.refine.parameter_search import DEFAULT_SEARCH_ORDER
 from fnsi_lab.ident.refinement import refine
+from fnsi_lab.ident.robust.mode_support import with_mode_evidence
 from fnsi_lab.ident.robust.nested import NestedTest
 from fnsi_lab.ident.request import (DEFAULT_ORDERS, IdentRequest, basis_from_truth,
                                     default_config, resolve_request)
@@ -216,6 +217,8 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
                 if before is not None:
                     fit, spectra, nested = before
                     model = fit.model
+            # an added mode without physical evidence leaves the answer's list (issue 29)
+            nested = with_mode_evidence(nested, model, session, spectra)
             session.timings_s["linear_fit"] = time.perf_counter() - t3
     session.timings_s["total"] = time.perf_counter() - t0
     for stage, seconds in (spent_s or {}).items():

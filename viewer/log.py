@@ -64,6 +64,7 @@ FATE_STYLE: dict[str, tuple[tuple[int, int, int], str]] = {
     "not_detectable": (_SKY, "not detectable"),
     "not_stabilised": ((140, 86, 75), "not stabilised"),
     "mains_hum": (_YELLOW, "mains hum"),
+    "no_evidence": ((227, 119, 194), "no physical evidence"),
     "unstable": (_BLACK, "unstable"),
     "out_of_band": ((170, 170, 170), "out of band"),
 }

@@ -43,6 +43,7 @@ FATE_STYLE: dict[str, tuple[str, str]] = {
     "not_detectable": ("#56b4e9", "v"),
     "not_stabilised": ("#8c564b", "^"),
     "mains_hum": ("#f0e442", "*"),
+    "no_evidence": ("#e377c2", "h"),
     "unstable": ("#000000", "+"),
     "out_of_band": ("#aaaaaa", "."),
 }

@@ -138,6 +138,10 @@ class NestedTest:
     simulation_rejected : bool
         The F-test supported the nonlinear terms but that simulation did not: some output
         predicted worse than by the linear fit, or no steady state.
+    mode_evidence : tuple of dict
+        The passivity test of each physical mode of the nonlinear answer
+        (:func:`ident.robust.mode_support.mode_evidence`, :meth:`require_mode_evidence`);
+        those that fail it are in ``modes["left_out"]``, not in the answer's modes.
     """
 
     residual_nonlinear: float
@@ -158,6 +162,37 @@ class NestedTest:
     undetermined: bool = False
     simulation: dict | None = None
     simulation_rejected: bool = False
+    mode_evidence: tuple = ()
+
+    @property
+    def left_out_hz(self) -> list[float]:
+        """Natural frequencies (Hz) of the nonlinear model's modes left out of the answer for
+        lack of physical evidence (:meth:`require_mode_evidence`)."""
+        return [float(r["frequency_hz"]) for r in self.modes.get("left_out") or []]
+
+    def require_mode_evidence(self, evidence: Sequence[dict]) -> NestedTest:
+        """The test whose answer lists only the modes with physical evidence: the modes of
+        the rows of :func:`ident.robust.mode_support.mode_evidence` that are not
+        ``supported`` go to ``modes["left_out"]`` (``frequency_hz``, ``damping_ratio``,
+        ``reason``, and ``linear_fit``: whether the linear fit had a mode within
+        :data:`MODE_MATCH`), and the others are paired with the linear fit's modes again
+        (:func:`match_modes`: ``kept``, ``lost``, ``added``). Returns a new test."""
+        rows = [dict(r) for r in evidence]
+        out = [r for r in rows if not r.get("supported", True)]
+        gone = [float(r["frequency_hz"]) for r in out]
+        kept = self.modes.get("kept") or []
+        nonlinear = [float(k["nonlinear_hz"]) for k in kept] + [
+            float(f) for f in self.modes.get("added") or []]
+        linear = [float(k["linear_hz"]) for k in kept] + [
+            float(f) for f in self.modes.get("lost") or []]
+        paired = {round(float(k["nonlinear_hz"]), 9) for k in kept}
+        left = [{"frequency_hz": r["frequency_hz"], "damping_ratio": r.get("damping_ratio"),
+                 "linear_fit": round(float(r["frequency_hz"]), 9) in paired,
+                 "reason": r.get("reason")} for r in out]
+        survivors = [f for f in nonlinear
+                     if not any(abs(f - g) <= 1e-9 * max(g, 1e-12) for g in gone)]
+        return replace(self, mode_evidence=tuple(rows),
+                       modes={**match_modes(linear, survivors), "left_out": left})
 
     @property
     def supported(self) -> bool:
@@ -216,6 +251,12 @@ class NestedTest:
                         if lost else "",
                         f"adds {', '.join(f'{f:.4g}' for f in added)} Hz" if added else "")
                     if part) + ": check them")
+            left = self.modes.get("left_out") or []
+            if left:
+                extra += ("; left out of the answer, the nonlinear model's " + ", ".join(
+                    f"{r['frequency_hz']:.4g}" for r in left) + " Hz (a negative modal mass "
+                    "at the driving point or at the element: no physical mode; "
+                    "nonlinear_vs_linear.modes.left_out)")
             checked = ""
             if self.simulation and self.simulation.get("record"):
                 rows = self.simulation.get("outputs") or []
@@ -279,6 +320,7 @@ class NestedTest:
                 "evaluation": self.evaluation, "coefficients_undetermined": self.undetermined,
                 "modes": self.modes, "statement": self.statement,
                 "simulation": self.simulation, "simulation_rejected": self.simulation_rejected,
+                "mode_evidence": [dict(r) for r in self.mode_evidence],
                 "linear_modes": ([{"frequency_hz": m["frequency_hz"],
                                    "damping_ratio": m["damping_ratio"]}
                                   for m in self.linear.modes] if self.linear is not None else None)}

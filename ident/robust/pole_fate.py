@@ -34,6 +34,9 @@ FATES: dict[str, tuple[str, str]] = {
     "not_stabilised": ("not stabilised",
                        "above the MDI threshold but dropped: new at this order"),
     "mains_hum": ("mains hum", "dropped: near-undamped at a 50/60 Hz harmonic"),
+    "no_evidence": ("no physical evidence",
+                    "physical for the nonlinear model's classification, left out of the "
+                    "answer: a negative modal mass at the driving point or at the element"),
     "unstable": ("unstable", "negative damping: not a candidate"),
     "out_of_band": ("out of band", "outside the processed band: not a candidate"),
 }
@@ -45,7 +48,8 @@ def _near(f: float, freqs: Sequence[float], rel: float = 1e-6) -> bool:
 
 
 def pole_fates(mdi_rows: Sequence[Mapping[str, Any]], confidence: Mapping[str, Any] | None,
-               left_out_hz: Sequence[float] = ()) -> list[str]:
+               left_out_hz: Sequence[float] = (),
+               no_evidence_hz: Sequence[float] = ()) -> list[str]:
     """The fate of each pole of the MDI table.
 
     Parameters
@@ -58,6 +62,9 @@ def pole_fates(mdi_rows: Sequence[Mapping[str, Any]], confidence: Mapping[str, A
     left_out_hz : sequence of float
         Frequencies of the split modes the output-error refinement left out
         (``output_error.left_out[].frequency_hz``); matched within 0.5 %.
+    no_evidence_hz : sequence of float
+        Frequencies of a kept nonlinear answer's modes without physical evidence
+        (``nonlinear_vs_linear.modes.left_out[].frequency_hz``, :mod:`ident.robust.mode_support`).
 
     Returns
     -------
@@ -76,6 +83,8 @@ def pole_fates(mdi_rows: Sequence[Mapping[str, Any]], confidence: Mapping[str, A
         if r.get("physical"):
             if _near(f, left_out_hz, 5e-3):
                 fate = "split"
+            elif _near(f, no_evidence_hz):
+                fate = "no_evidence"
             else:
                 fate = "rescued" if _near(f, rescued) else "physical"
         elif not r.get("in_band", True):
@@ -97,12 +106,17 @@ def pole_fates(mdi_rows: Sequence[Mapping[str, Any]], confidence: Mapping[str, A
 
 
 def result_fates(result: Mapping[str, Any]) -> list[str]:
-    """:func:`pole_fates` of a result dict (the JSON): its ``mdi`` rows, ``confidence``
-    and the refinement's ``left_out`` split modes."""
+    """:func:`pole_fates` of a result dict (the JSON): its ``mdi`` rows, ``confidence``,
+    the refinement's ``left_out`` split modes and the added modes the nested test left out
+    (``nonlinear_vs_linear.modes.left_out``)."""
     left = [float(m["frequency_hz"]) for m in
             ((result.get("output_error") or {}).get("left_out") or [])
             if m.get("frequency_hz") is not None]
-    return pole_fates(result.get("mdi") or [], result.get("confidence"), left)
+    nested = result.get("nonlinear_vs_linear") or {}
+    gone = ([float(m["frequency_hz"]) for m in ((nested.get("modes") or {}).get("left_out")
+                                                  or []) if m.get("frequency_hz") is not None]
+            if nested.get("decision") == "nonlinear" else [])
+    return pole_fates(result.get("mdi") or [], result.get("confidence"), left, gone)
 
 
 def fate_label(fate: str) -> str:

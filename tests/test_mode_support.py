@@ -1,0 +1,153 @@
+"""Modes a kept nonlinear answer adds must have physical evidence (issue 29;
+ident.robust.mode_support): passivity at the driving point and at the element's own pair."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.signal import cont2discrete
+
+from fnsi_lab.ident.core.basis import Nonlinearity
+from fnsi_lab.ident.core.state_space import make_model
+from fnsi_lab.ident.robust.mode_support import mode_evidence
+from fnsi_lab.ident.robust.nested import NestedTest
+from fnsi_lab.ident.robust.pole_fate import result_fates
+
+FS = 200.0
+K_JOINT = 4.0e3   # N/m, the element's coefficient
+L = np.array([0.0, 1.0, -1.0])   # the element between X2 and X3
+
+
+def _chain() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A 3-mass chain (1 kg each, 1e4 N/m springs, ground at X1), Rayleigh damping (real
+    normal modes), force at X1, the element's basis column acting with ``-K_JOINT g L``;
+    accelerations of X1-X3. Continuous-time ``A, B, C, D``."""
+    m = np.eye(3)
+    k = 1e4 * np.array([[2.0, -1.0, 0.0], [-1.0, 2.0, -1.0], [0.0, -1.0, 1.0]])
+    c = 0.5 * m + 2e-4 * k
+    load = np.column_stack([[1.0, 0.0, 0.0], -K_JOINT * L])   # force, basis column
+    a = np.block([[np.zeros((3, 3)), np.eye(3)], [-k, -c]])
+    b = np.vstack([np.zeros((3, 2)), load])
+    return a, b, np.hstack([-k, -c]), load
+
+
+def _oscillator(freq_hz: float, zeta: float, shape: np.ndarray, b_row: np.ndarray):
+    """One more mode: ``q'' + 2 zeta w q' + w^2 q = b_row . e``, the outputs ``shape q''``."""
+    w = 2 * np.pi * freq_hz
+    a = np.array([[0.0, 1.0], [-w * w, -2 * zeta * w]])
+    b = np.vstack([np.zeros((1, 2)), b_row[None, :]])
+    c = np.outer(shape, [-w * w, -2 * zeta * w])
+    return a, b, c, np.outer(shape, b_row)
+
+
+def _model(*extra):
+    a, b, c, d = _chain()
+    for ae, be, ce, de in extra:
+        n = a.shape[0]
+        a = np.block([[a, np.zeros((n, 2))], [np.zeros((2, n)), ae]])
+        b, c, d = np.vstack([b, be]), np.hstack([c, ce]), d + de
+    ad, bd, cd, dd, _ = cont2discrete((a, b, c, d), 1 / FS, method="zoh")
+    return make_model(ad, bd, cd, dd, sample_rate_hz=FS, n_inputs=1,
+                      input_names=("F", "joint"), output_names=("X1", "X2", "X3"))
+
+
+ELEMENT = Nonlinearity(name="joint", kind="polynomial", channels={"X2": 1, "X3": -1},
+                       exponent=3)
+
+
+def _evidence(model, freqs, values=None, quantity="acceleration"):
+    return mode_evidence(model, freqs, driving_points={"F": "X1"}, basis=[ELEMENT],
+                               output_quantity=quantity,
+                               coefficient_values=({"joint": K_JOINT} if values is None
+                                                   else values))
+
+
+def _mode_hz(model, near):
+    f = model.poles.natural_frequency_hz[model.poles.is_mode]
+    return float(f[np.argmin(np.abs(f - near))])
+
+
+def test_every_mode_of_a_passive_structure_has_evidence():
+    model = _model()
+    freqs = sorted(model.poles.natural_frequency_hz[model.poles.is_mode])
+    assert len(freqs) == 3
+    rows = _evidence(model, freqs)
+    assert all(r["supported"] and r["reason"] is None for r in rows)
+    # real normal modes: a collocated residue's modal mass is real and positive; the
+    # zero-order hold round trip is exact, so the phase is 0 to rounding (1e-6 deg asserted)
+    for r in rows:
+        assert abs(r["driving_point_phase_deg"]["F"]) < 1e-6
+        if r["element_participation"]["joint"] >= 0.1:
+            assert abs(r["element_phase_deg"]["joint"]) < 1e-6
+    # the same outputs read as displacement would be another model: the quantity matters
+    # (y = lambda^2 x: the acceleration residue read as a receptance turns by ~180 deg)
+    disp = _evidence(model, freqs, quantity="displacement")
+    assert all(abs(abs(r["driving_point_phase_deg"]["F"]) - 180) < 10 for r in disp)
+
+
+def test_a_mode_with_a_negative_modal_mass_at_the_driving_point_is_left_out():
+    # the shaker's own point pushed by -1 N/kg: it would draw power out of the shaker
+    model = _model(_oscillator(20.0, 0.03, np.array([1.0, 0.5, 0.2]), np.array([-1.0, 0.0])))
+    f = _mode_hz(model, 20.0)
+    (row,) = _evidence(model, [f])
+    assert not row["supported"]
+    assert abs(row["driving_point_phase_deg"]["F"]) > 170   # a negative mass: 180 deg
+    assert "driving point X1" in row["reason"] and "negative" in row["reason"]
+
+
+def test_a_mode_the_element_drives_with_the_wrong_sign_is_left_out():
+    # positive at the driving point, but the element's column pushes it as a *negative*
+    # stiffness would: -(L.phi) b_joint / k < 0
+    shape = np.array([1.0, 0.8, -0.6])
+    model = _model(_oscillator(35.0, 0.02, shape, np.array([1.0, K_JOINT * (L @ shape)])))
+    f = _mode_hz(model, 35.0)
+    (row,) = _evidence(model, [f])
+    assert abs(row["driving_point_phase_deg"]["F"]) < 1.0
+    assert abs(abs(row["element_phase_deg"]["joint"]) - 180) < 1.0
+    assert not row["supported"] and "element 'joint'" in row["reason"]
+    # an element whose coefficient the data do not determine gives no sign: not tested
+    (untested,) = _evidence(model, [f], values={})
+    assert untested["supported"] and untested["element_phase_deg"] == {}
+
+
+def test_the_answer_lists_only_the_added_modes_with_evidence():
+    test = NestedTest(residual_nonlinear=1.0, residual_linear=10.0, parameters_nonlinear=20,
+                      parameters_linear=10, n_observations=1000, statistic=50.0,
+                      p_value=1e-20, decision="nonlinear", order_nonlinear=8,
+                      order_linear=6, weighting="noise",
+                      modes={"kept": [], "lost": [], "added": [19.64, 22.26]})
+    rows = [{"frequency_hz": 19.64, "damping_ratio": 0.05, "supported": False,
+             "reason": "at F's driving point X1 its modal mass is negative"},
+            {"frequency_hz": 22.26, "damping_ratio": 0.03, "supported": True, "reason": None}]
+    kept = test.require_mode_evidence(rows)
+    assert kept.modes["added"] == [22.26] and kept.left_out_hz == [19.64]
+    assert "adds 22.26 Hz: check them" in kept.statement
+    assert "19.64 Hz" in kept.statement.split("check them")[1]
+    doc = kept.to_dict()
+    assert doc["modes"]["left_out"][0]["reason"].startswith("at F's driving point")
+    assert [r["frequency_hz"] for r in doc["mode_evidence"]] == [19.64, 22.26]
+    # the JSON's fate of that pole, physical for the nonlinear model's classification
+    mdi = [{"frequency_hz": f, "physical": True, "in_band": True, "stable": True}
+           for f in (19.64, 22.26)]
+    result = {"mdi": mdi, "confidence": {}, "nonlinear_vs_linear": doc}
+    assert result_fates(result) == ["no_evidence", "physical"]
+    # a mode the linear fit has too that fails is left out as well: the linear fit's mode
+    # is then said lost (a Jenkins model's stuck-joint mode: bench/RESULTS_beam.md)
+    both = NestedTest(**{**test.__dict__, "modes": {
+        "kept": [{"linear_hz": 3.034, "nonlinear_hz": 3.032, "shift_percent": -0.07}],
+        "lost": [], "added": [3.217]}}).require_mode_evidence(
+        [{"frequency_hz": 3.032, "supported": False, "reason": "at element 'joint' ..."},
+         {"frequency_hz": 3.217, "supported": True}])
+    assert both.modes["lost"] == [3.034] and both.modes["added"] == [3.217]
+    assert both.modes["left_out"][0]["linear_fit"] is True
+    assert "loses the linear fit's 3.034 Hz" in both.statement
+    # a linear answer's modes are the linear fit's: no fate of the nonlinear model's moves
+    assert result_fates({**result, "nonlinear_vs_linear": {**doc, "decision": "linear"}}) \
+        == ["physical", "physical"]
+
+
+@pytest.mark.parametrize("quantity", [None, "strain"])
+def test_no_output_quantity_no_test(quantity):
+    model = _model(_oscillator(20.0, 0.03, np.array([1.0, 0.5, 0.2]), np.array([-1.0, 0.0])))
+    (row,) = _evidence(model, [_mode_hz(model, 20.0)], quantity=quantity)
+    assert row["supported"]
