@@ -10,8 +10,9 @@ nonlinear model's physical classification (those left out for lack of evidence i
 - ``zeta``, ``MDI``, stabilisation class, ``detection`` (sigmas above the model's residual
   in its bandwidth: ``ident.robust.mdi.modal_detection``);
 - ``dp``: the phase of its modal mass at the driving point, ``el``: at the element's own pair
-  (with the coefficient's sign; ``-`` where the element does not move, share < 0.1), degrees,
-  0 for a real normal mode, beyond +-90 for a negative modal mass
+  (with the coefficient's sign; ``-`` where the element shifts the mode by less than a line),
+  degrees, 0 for a real normal mode, beyond +-90 for a negative modal mass; ``shift``: how
+  far the element's stiffness moves the mode, in lines ``fs / N``
   (``ident.robust.mode_support``);
 - ``truth``: the nearest mode of the structure with the joint slipping (and stuck), error %.
 
@@ -75,7 +76,8 @@ def mode_rows(record: Path, config: Path) -> tuple[list[dict], str]:
     evidence = mode_evidence(
         res.model, [m.frequency_hz for m in modes], driving_points=res.config.driving_points,
         basis=res.config.nonlinearities, output_quantity=res.data.output_quantity,
-        coefficient_values=values)
+        coefficient_values=values,
+        resolution_hz=res.session.input.sample_rate_hz / res.data.samples_per_period)
     mdi = {round(r["frequency_hz"], 6): r for r in (res.auto.mdi_table() if res.auto else [])}
     truth = _truth(record)
     slipping = truth.get("modes_joint_slipping_hz") or []
@@ -99,6 +101,9 @@ def mode_rows(record: Path, config: Path) -> tuple[list[dict], str]:
             "driving_point_phase_deg": next(iter(ev["driving_point_phase_deg"].values()), None),
             "element_phase_deg": next(iter(ev["element_phase_deg"].values()), None),
             "element_participation": next(iter(ev["element_participation"].values()), None),
+            "element_shift_lines": (max(ev["element_shift_hz"].values())
+                                    * res.data.samples_per_period / res.session.input.sample_rate_hz
+                                    if ev["element_shift_hz"] else None),
             "passive": ev["supported"],
             "truth_slipping_hz": t_slip, "error_slipping_percent": e_slip,
             "truth_stuck_hz": t_stuck, "error_stuck_percent": e_stuck})
@@ -111,13 +116,14 @@ def _fmt(x, spec: str, missing: str = "-") -> str:
 
 def print_table(rows: list[dict]) -> None:
     print("| f (Hz) | zeta % | vs linear fit | MDI | stab. | detection | dp (deg) | el (deg) "
-          "| passive | truth slipping (err %) | truth stuck (err %) |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+          "| shift (lines) | passive | truth slipping (err %) | truth stuck (err %) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         print(f"| {r['frequency_hz']:.3f} | {100 * r['damping_ratio']:.2f} | {r['linear_fit']} "
               f"| {_fmt(r['mdi'], '.3g')} | {r['stabilisation'] or '-'} "
               f"| {_fmt(r['detection'], '.3g')} | {_fmt(r['driving_point_phase_deg'], '+.0f')} "
-              f"| {_fmt(r['element_phase_deg'], '+.0f')} | {'yes' if r['passive'] else 'no'} "
+              f"| {_fmt(r['element_phase_deg'], '+.0f')} | {_fmt(r['element_shift_lines'], '.2g')} "
+              f"| {'yes' if r['passive'] else 'no'} "
               f"| {_fmt(r['truth_slipping_hz'], '.3f')} ({_fmt(r['error_slipping_percent'], '+.1f')}) "
               f"| {_fmt(r['truth_stuck_hz'], '.3f')} ({_fmt(r['error_stuck_percent'], '+.1f')}) |")
 

@@ -55,11 +55,11 @@ ELEMENT = Nonlinearity(name="joint", kind="polynomial", channels={"X2": 1, "X3":
                        exponent=3)
 
 
-def _evidence(model, freqs, values=None, quantity="acceleration"):
+def _evidence(model, freqs, values=None, quantity="acceleration", resolution_hz=None):
     return mode_evidence(model, freqs, driving_points={"F": "X1"}, basis=[ELEMENT],
-                               output_quantity=quantity,
-                               coefficient_values=({"joint": K_JOINT} if values is None
-                                                   else values))
+                         output_quantity=quantity,
+                         coefficient_values=({"joint": K_JOINT} if values is None else values),
+                         resolution_hz=resolution_hz)
 
 
 def _mode_hz(model, near):
@@ -77,8 +77,7 @@ def test_every_mode_of_a_passive_structure_has_evidence():
     # zero-order hold round trip is exact, so the phase is 0 to rounding (1e-6 deg asserted)
     for r in rows:
         assert abs(r["driving_point_phase_deg"]["F"]) < 1e-6
-        if r["element_participation"]["joint"] >= 0.1:
-            assert abs(r["element_phase_deg"]["joint"]) < 1e-6
+        assert abs(r["element_phase_deg"]["joint"]) < 1e-6
     # the same outputs read as displacement would be another model: the quantity matters
     # (y = lambda^2 x: the acceleration residue read as a receptance turns by ~180 deg)
     disp = _evidence(model, freqs, quantity="displacement")
@@ -108,6 +107,15 @@ def test_a_mode_the_element_drives_with_the_wrong_sign_is_left_out():
     # an element whose coefficient the data do not determine gives no sign: not tested
     (untested,) = _evidence(model, [f], values={})
     assert untested["supported"] and untested["element_phase_deg"] == {}
+    # nor one that moves the mode by less than a line of the record: kappa f / 2 with
+    # kappa = k (L.phi)^2 / (m w^2) (unit modal mass here): 8 % of 35 Hz
+    kappa = K_JOINT * (L @ shape) ** 2 / (2 * np.pi * 35.0) ** 2
+    assert row["element_shift_hz"]["joint"] == pytest.approx(0.5 * kappa * 35.0, rel=0.01)
+    shift = row["element_shift_hz"]["joint"]
+    (coarse,) = _evidence(model, [f], resolution_hz=1.01 * shift)
+    assert coarse["supported"] and coarse["element_phase_deg"] == {}
+    (fine,) = _evidence(model, [f], resolution_hz=0.99 * shift)
+    assert not fine["supported"]
 
 
 def test_the_answer_lists_only_the_added_modes_with_evidence():
