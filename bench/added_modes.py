@@ -60,9 +60,7 @@ def _nearest(f: float, truth_hz) -> tuple[float | None, float | None]:
 def mode_rows(record: Path, config: Path) -> tuple[list[dict], str]:
     """Per physical mode of the nonlinear model: the features above; and the statement."""
     import fnsi_lab
-    from fnsi_lab.ident.coefficient_summaries import coefficient_summaries
     from fnsi_lab.ident.fit import Fit, answer_modes
-    from fnsi_lab.ident.robust.mode_support import mode_evidence
 
     res = fnsi_lab.identify(str(record), config=str(config))
     nested = res.nested
@@ -70,14 +68,11 @@ def mode_rows(record: Path, config: Path) -> tuple[list[dict], str]:
         return [], (nested.statement if nested is not None else "no nested test")
     fit = Fit(res.model, res.method, res.auto, res.decomposition)
     modes = answer_modes(fit, res.output_error)      # before the evidence: every one
-    values = {c["name"]: c["value"] for c in coefficient_summaries(res.coefficient_spectra,
-                                                                   res.session)
-              if c.get("verdict") != "not identifiable"}
-    evidence = mode_evidence(
-        res.model, [m.frequency_hz for m in modes], driving_points=res.config.driving_points,
-        basis=res.config.nonlinearities, output_quantity=res.data.output_quantity,
-        coefficient_values=values,
-        resolution_hz=res.session.input.sample_rate_hz / res.data.samples_per_period)
+    # the pipeline's own test of every mode (ident.robust.mode_support, via the nested test)
+    tested = {round(float(r["frequency_hz"]), 6): r for r in nested.mode_evidence}
+    evidence = [tested.get(round(m.frequency_hz, 6)) or {
+        "driving_point_phase_deg": {}, "element_phase_deg": {}, "element_participation": {},
+        "element_shift_hz": {}, "overlaps_hz": [], "supported": True} for m in modes]
     mdi = {round(r["frequency_hz"], 6): r for r in (res.auto.mdi_table() if res.auto else [])}
     truth = _truth(record)
     slipping = truth.get("modes_joint_slipping_hz") or []
@@ -104,6 +99,9 @@ def mode_rows(record: Path, config: Path) -> tuple[list[dict], str]:
             "element_shift_lines": (max(ev["element_shift_hz"].values())
                                     * res.data.samples_per_period / res.session.input.sample_rate_hz
                                     if ev["element_shift_hz"] else None),
+            "overlaps_hz": ev.get("overlaps_hz") or [],
+            "driving_point_detection": next(iter((ev.get("driving_point_detection")
+                                                  or {}).values()), None),
             "passive": ev["supported"],
             "truth_slipping_hz": t_slip, "error_slipping_percent": e_slip,
             "truth_stuck_hz": t_stuck, "error_stuck_percent": e_stuck})
@@ -114,16 +112,26 @@ def _fmt(x, spec: str, missing: str = "-") -> str:
     return missing if x is None or (isinstance(x, float) and not np.isfinite(x)) else format(x, spec)
 
 
+def _untested(r: dict) -> str:
+    """Why a pair was not tested: an overlapping half-power band, or a driving point where
+    the mode does not stand out of the residual (sigmas)."""
+    if r["overlaps_hz"]:
+        return "overlaps " + ", ".join(f"{f:.2f}" for f in r["overlaps_hz"])
+    d = r.get("driving_point_detection")
+    return f"dp at {d:.1f} sigma" if d is not None and r["driving_point_phase_deg"] is None \
+        else ""
+
+
 def print_table(rows: list[dict]) -> None:
     print("| f (Hz) | zeta % | vs linear fit | MDI | stab. | detection | dp (deg) | el (deg) "
-          "| shift (lines) | passive | truth slipping (err %) | truth stuck (err %) |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+          "| shift (lines) | not tested | passive | truth slipping (err %) | truth stuck (err %) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         print(f"| {r['frequency_hz']:.3f} | {100 * r['damping_ratio']:.2f} | {r['linear_fit']} "
               f"| {_fmt(r['mdi'], '.3g')} | {r['stabilisation'] or '-'} "
               f"| {_fmt(r['detection'], '.3g')} | {_fmt(r['driving_point_phase_deg'], '+.0f')} "
               f"| {_fmt(r['element_phase_deg'], '+.0f')} | {_fmt(r['element_shift_lines'], '.2g')} "
-              f"| {'yes' if r['passive'] else 'no'} "
+              f"| {_untested(r)} | {'yes' if r['passive'] else 'no'} "
               f"| {_fmt(r['truth_slipping_hz'], '.3f')} ({_fmt(r['error_slipping_percent'], '+.1f')}) "
               f"| {_fmt(r['truth_stuck_hz'], '.3f')} ({_fmt(r['error_stuck_percent'], '+.1f')}) |")
 

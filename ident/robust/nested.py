@@ -254,9 +254,9 @@ class NestedTest:
             left = self.modes.get("left_out") or []
             if left:
                 extra += ("; left out of the answer, the nonlinear model's " + ", ".join(
-                    f"{r['frequency_hz']:.4g}" for r in left) + " Hz (a negative modal mass "
-                    "at the driving point or at the element: no physical mode; "
-                    "nonlinear_vs_linear.modes.left_out)")
+                    f"{r['frequency_hz']:.4g}" for r in left) + " Hz (isolated modes with a "
+                    "negative modal mass at the driving point or at the element: no mode of a "
+                    "passive structure; nonlinear_vs_linear.modes.left_out)")
             checked = ""
             if self.simulation and self.simulation.get("record"):
                 rows = self.simulation.get("outputs") or []

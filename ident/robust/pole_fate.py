@@ -36,7 +36,8 @@ FATES: dict[str, tuple[str, str]] = {
     "mains_hum": ("mains hum", "dropped: near-undamped at a 50/60 Hz harmonic"),
     "no_evidence": ("no physical evidence",
                     "physical for the nonlinear model's classification, left out of the "
-                    "answer: a negative modal mass at the driving point or at the element"),
+                    "answer: an isolated mode with a negative modal mass at the driving point or "
+                    "at the element"),
     "unstable": ("unstable", "negative damping: not a candidate"),
     "out_of_band": ("out of band", "outside the processed band: not a candidate"),
 }
