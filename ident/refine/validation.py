@@ -75,11 +75,13 @@ BALANCE_TOLERANCE = 1e-6
 #: Where Newton does not reach ``BALANCE_TOLERANCE`` in its iterations, its best iterate is
 #: taken when it is below this residual, before the model is said to have no steady state: an error
 #: of 1e-4 in the motion is 80 dB below it, and changes a validation error of -60 dB (better
-#: than any measured here) by under 0.1 dB. Hysteretic elements (``jenkins``) have a
-#: piecewise-linear force whose Newton iterations converge slowly: on the Bouc-Wen beam
-#: (bench/RESULTS_beam.md) a Jenkins model stopped at 4e-6 after 60 iterations and was
-#: called "no periodic steady state"; at 1e-4 it predicts the record 8-10 dB better than
-#: the linear fit. Models that reach 1e-6 keep their numbers.
+#: than any measured here) by under 0.1 dB. On the Bouc-Wen beam (bench/RESULTS_beam.md) a
+#: Jenkins model had stopped at 4e-6 after 60 iterations and was called "no periodic steady
+#: state" (its Newton steps crawled: the preconditioner read every weak line's response as
+#: the mean slope, since mended, :meth:`HarmonicBalance._diagonal_block`, 5 iterations to
+#: 2e-11 now); at 1e-4 it predicts the record 8-10 dB better than the linear fit. The
+#: fallback stays for models whose Newton steps still crawl. Models that reach 1e-6 keep
+#: their numbers.
 BALANCE_TOLERANCE_SLOW = 1e-4
 
 
