@@ -131,3 +131,27 @@ def test_validation_records_not_used_and_a_period_mismatch_say_so_plainly(levels
                                            r"samples_per_period=4096 \(fix: "):
         fnsi_lab.identify(str(levels / "l0.npz"), str(fixed), order=6,
                           validation=str(levels / "short.npz"))
+
+
+def test_every_mismatch_of_every_record_is_named_at_once(levels):
+    """Two records that differ from the first in different ways (another sample rate;
+    another output quantity and another channel set): one line naming each record and each
+    mismatch, so the user mends them all in one go."""
+    from dataclasses import replace
+
+    from fnsi_lab.ident.core.io import stack_records
+    from fnsi_lab.inputs import load_input
+
+    base = load_input(str(levels / "l0.npz"))
+    other = load_input(str(levels / "l1.npz"))
+    fast = replace(other, sample_rate_hz=2 * other.sample_rate_hz, path="fast.npz")
+    velocity = replace(other, output_quantity="velocity", path="vel.npz",
+                       output_channels=tuple(f"V{i}" for i, _ in enumerate(other.output_channels)))
+    if base.output_quantity is None:
+        base = replace(base, output_quantity="displacement")
+    with pytest.raises(FnsiLabError) as err:
+        stack_records([base, fast, velocity])
+    text = str(err.value)
+    assert "\n" not in text
+    assert "fast.npz: sampled at" in text
+    assert "vel.npz: velocity outputs" in text and "vel.npz: " in text.split("velocity outputs")[1]

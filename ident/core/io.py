@@ -223,31 +223,19 @@ def stack_records(records: Sequence[IdentInput]) -> IdentInput:
     units = _common_units(records, outs + ins)
     grid_from = next((r for r in records if r.excited_lines is not None), None)
     grid = None if grid_from is None else np.asarray(grid_from.excited_lines)
-    us, ys = [], []
+    us, ys, problems = [], [], []
     for rec in records:
-        name = rec.path or "record"
-        if abs(rec.sample_rate_hz - first.sample_rate_hz) > 1e-9 * first.sample_rate_hz:
-            raise IdentDataError(f"{name}: sampled at {rec.sample_rate_hz:g} Hz, "
-                                 f"{first.path} at {first.sample_rate_hz:g} Hz (fix: records "
-                                 "of one rate)")
-        if (rec.samples_per_period != first.samples_per_period
-                or rec.u.shape[1] != first.u.shape[1]):
-            raise IdentDataError(f"{name}: {rec.u.shape[1]} period(s) of "
-                                 f"{rec.samples_per_period} samples, {first.path}: "
-                                 f"{first.u.shape[1]} of {first.samples_per_period} (fix: records "
-                                 "of one test plan; an array file without N gives it in the "
-                                 "file, or samples_per_period: in the config)")
-        if (rec.output_quantity and first.output_quantity
-                and rec.output_quantity != first.output_quantity):
-            raise IdentDataError(f"{name}: {rec.output_quantity} outputs, {first.path}: "
-                                 f"{first.output_quantity} (fix: records of the same sensors)")
-        picked = select_channels(rec, outputs=outs, inputs=ins)
-        if not _same_grid(rec, grid):
-            raise IdentDataError(f"{name}: excites other lines than "
-                                 f"{grid_from.path if grid_from else first.path} (fix: records of "
-                                 "one multisine grid; other phases are fine)")
-        us.append(np.asarray(picked.u))
-        ys.append(np.asarray(picked.y))
+        found = _stack_mismatches(rec, first, grid, grid_from)
+        try:
+            picked = select_channels(rec, outputs=outs, inputs=ins)
+        except ChannelError as exc:
+            found.append(str(exc).strip("\"'"))
+        problems.extend(found)
+        if not found:
+            us.append(np.asarray(picked.u))
+            ys.append(np.asarray(picked.y))
+    if problems:   # every mismatch at once: one fix per record, not one per run
+        raise IdentDataError("; ".join(problems))
     transient = first.transient_periods
     if transient is None:
         declared = [r.transient_periods for r in records if r.transient_periods is not None]
@@ -270,6 +258,32 @@ def stack_records(records: Sequence[IdentInput]) -> IdentInput:
                    channel_units=units, notes=notes,
                    parts=tuple((str(r.path), int(np.asarray(u_k).shape[0]))
                                for r, u_k in zip(records, us)))
+
+
+def _stack_mismatches(rec: IdentInput, first: IdentInput, grid: np.ndarray | None,
+                      grid_from: IdentInput | None) -> list[str]:
+    """What keeps ``rec`` from being stacked under ``first``: one clause per mismatch,
+    naming the record and the fix (empty: none)."""
+    name = rec.path or "record"
+    out = []
+    if abs(rec.sample_rate_hz - first.sample_rate_hz) > 1e-9 * first.sample_rate_hz:
+        out.append(f"{name}: sampled at {rec.sample_rate_hz:g} Hz, {first.path} at "
+                   f"{first.sample_rate_hz:g} Hz (fix: records of one rate)")
+    same_period = rec.samples_per_period == first.samples_per_period
+    if not same_period or rec.u.shape[1] != first.u.shape[1]:
+        out.append(f"{name}: {rec.u.shape[1]} period(s) of {rec.samples_per_period} samples, "
+                   f"{first.path}: {first.u.shape[1]} of {first.samples_per_period} (fix: "
+                   "records of one test plan; an array file without N gives it in the file, "
+                   "or samples_per_period: in the config)")
+    if (rec.output_quantity and first.output_quantity
+            and rec.output_quantity != first.output_quantity):
+        out.append(f"{name}: {rec.output_quantity} outputs, {first.path}: "
+                   f"{first.output_quantity} (fix: records of the same sensors)")
+    if same_period and not _same_grid(rec, grid):   # lines of another period mean nothing
+        out.append(f"{name}: excites other lines than "
+                   f"{grid_from.path if grid_from else first.path} (fix: records of one "
+                   "multisine grid; other phases are fine)")
+    return out
 
 
 def _common_units(records: Sequence[IdentInput], names: Sequence[str]) -> dict[str, str]:
