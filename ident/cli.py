@@ -293,9 +293,11 @@ def _print_auto_summary(res: Any, out=None, warnings: list | tuple = (),
                 mark = " <- FNSI's answer, refined below"
             unit = coefficient_units.get(c["name"], "")
             unit = f" {unit}" if unit else ""
+            verdict = verdict_text(c, reason=bool(mark))
+            if linear and not mark and verdict:   # not the file's verdict: the answer's is
+                verdict = verdict[:-1] + " on its own]"
             print(f"  {label} {c['name']}: value {c['value']:.6g}{unit}{err} (LS; mean Re "
-                  f"{c['mean_real']:.6g}, std {c['std_real']:.3g}){mark}"
-                  f"{verdict_text(c, reason=bool(mark))}", file=out)
+                  f"{c['mean_real']:.6g}, std {c['std_real']:.3g}){mark}{verdict}", file=out)
     for w in warnings:
         print(f"  warning: {w}", file=out)
 

@@ -246,3 +246,23 @@ def test_the_simulation_check_says_which_record_it_simulates(capsys):
     fnsi_lab.identify(arrays("cubic", 5.0, 0), {**CUBIC, "compare_linear": True}, order=6,
                       validation=other)
     assert "simulation check" not in capsys.readouterr().err
+
+
+def test_a_linear_answer_marks_its_nonlinear_models_verdicts_as_their_own(tmp_path, capsys):
+    """When the answer is the linear fit, the summary's lines for the models it did not keep
+    (the criterion's "selected" order) carry their verdict "on its own": a bare
+    "[identified]" above the answer's "[not identifiable: ...]" read as a contradiction
+    (the Bouc-Wen beam's cubic at 0.02 N, bench/RESULTS_beam.md)."""
+    import yaml
+
+    from fnsi_lab.cli import main
+
+    np.savez(tmp_path / "chain.npz", **arrays("none", 5.0, 2))
+    (tmp_path / "c.yaml").write_text(yaml.safe_dump(CUBIC))
+    assert main(["ident", str(tmp_path / "chain.npz"), "--config", str(tmp_path / "c.yaml"),
+                 "--auto", "--json", str(tmp_path / "r.json")]) == 0
+    lines = [ln for ln in capsys.readouterr().out.splitlines() if " knl: value " in ln]
+    answer = [ln for ln in lines if "<- " in ln]
+    others = [ln for ln in lines if "<- " not in ln]
+    assert len(answer) == 1 and "[not identifiable" in answer[0] and "on its own]" not in answer[0]
+    assert others and all(ln.endswith("on its own]") for ln in others), others
