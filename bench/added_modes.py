@@ -2,7 +2,8 @@
 spurious ones (issue 29: "adding a basis function must never ... invent" a mode).
 
 For each record and config (a simulated record whose truth lists the modes of the structure
-with the joint slipping, the underlying linear model of a Jenkins element, and stuck), the
+with the joint slipping, the underlying linear model of a Jenkins element, and stuck:
+bench/aircraft.py, bench/independent_beam.py, bench/independent_joint.py), the
 answer of ``fnsi_lab.identify`` (robust pipeline, no validation record) and per mode of the
 nonlinear model's physical classification (those left out for lack of evidence included):
 
@@ -75,16 +76,18 @@ def mode_rows(record: Path, config: Path) -> tuple[list[dict], str]:
         "element_shift_hz": {}, "overlaps_hz": [], "supported": True} for m in modes]
     mdi = {round(r["frequency_hz"], 6): r for r in (res.auto.mdi_table() if res.auto else [])}
     truth = _truth(record)
-    slipping = truth.get("modes_joint_slipping_hz") or []
-    stuck = (truth.get("modes_joint_stuck_hz")
-             or [m["frequency_hz"] for m in truth.get("modes") or []])
+    def hz(key):   # a list of Hz or of {frequency_hz, ...} (bench/independent_joint.py)
+        return [m["frequency_hz"] if isinstance(m, dict) else m for m in truth.get(key) or []]
+
+    slipping = hz("modes_joint_slipping_hz") or hz("modes_joint_free")
+    stuck = hz("modes_joint_stuck_hz") or hz("modes_joint_stuck") or hz("modes")
     added = {round(f, 6) for f in nested.modes.get("added") or []}
     left = {round(f, 6) for f in nested.left_out_hz}
     rows = []
     for m, ev in zip(modes, evidence):
         key = round(m.frequency_hz, 6)
-        row = mdi.get(key) or min(mdi.values(), key=lambda r: abs(r["frequency_hz"] - m.frequency_hz),
-                                  default={})
+        row = mdi.get(key) or min(mdi.values(), default={},
+                                  key=lambda r: abs(r["frequency_hz"] - m.frequency_hz))
         t_slip, e_slip = _nearest(m.frequency_hz, slipping)
         t_stuck, e_stuck = _nearest(m.frequency_hz, stuck)
         rows.append({
@@ -109,7 +112,9 @@ def mode_rows(record: Path, config: Path) -> tuple[list[dict], str]:
 
 
 def _fmt(x, spec: str, missing: str = "-") -> str:
-    return missing if x is None or (isinstance(x, float) and not np.isfinite(x)) else format(x, spec)
+    if x is None or (isinstance(x, float) and not np.isfinite(x)):
+        return missing
+    return format(x, spec)
 
 
 def _untested(r: dict) -> str:
@@ -132,7 +137,8 @@ def print_table(rows: list[dict]) -> None:
               f"| {_fmt(r['detection'], '.3g')} | {_fmt(r['driving_point_phase_deg'], '+.0f')} "
               f"| {_fmt(r['element_phase_deg'], '+.0f')} | {_fmt(r['element_shift_lines'], '.2g')} "
               f"| {_untested(r)} | {'yes' if r['passive'] else 'no'} "
-              f"| {_fmt(r['truth_slipping_hz'], '.3f')} ({_fmt(r['error_slipping_percent'], '+.1f')}) "
+              f"| {_fmt(r['truth_slipping_hz'], '.3f')} "
+              f"({_fmt(r['error_slipping_percent'], '+.1f')}) "
               f"| {_fmt(r['truth_stuck_hz'], '.3f')} ({_fmt(r['error_stuck_percent'], '+.1f')}) |")
 
 
@@ -150,7 +156,8 @@ def main(argv: list[str] | None = None) -> int:
     for record, config in zip(args.pairs[::2], args.pairs[1::2]):
         t0 = time.perf_counter()
         rows, statement = mode_rows(Path(record), Path(config))
-        print(f"\n### {Path(record).name} ({Path(config).name}, {time.perf_counter() - t0:.0f} s)\n")
+        took = time.perf_counter() - t0
+        print(f"\n### {Path(record).name} ({Path(config).name}, {took:.0f} s)\n")
         print(statement + "\n")
         if rows:
             print_table(rows)
