@@ -186,3 +186,30 @@ def test_several_records_and_a_validation_record_are_all_checked(six_levels):
         ("indep-rms6.npz", True), ("indep-rms10.npz", True), ("indep-rms20.npz", False)]
     assert records[0]["worse"] and nvl["decision"] == "linear"
     assert Path(nvl["simulation"]["record"]).name == "indep-rms6.npz"
+
+
+def test_a_slip_search_smallest_at_the_top_takes_the_minimum_below_it(six_levels):
+    """55 N (macro-slip and contact): the criterion is smallest at the top of the slip
+    interval, where the element barely slips and its column copies the motion. The search
+    takes its clear minimum below (it beats the model without the element), says so, and
+    the nested test keeps the element: the underlying linear model is then the joint-free
+    structure's (5.386, 10.507, 13.032 Hz in the truth; 1 %: the Iwan joint is ten sliders,
+    not one) and another level's record is predicted better than by the linear fit on every
+    output (measured 3.8-7.8 dB on 20 N; 2 dB is a third of the error energy, far beyond
+    what that record's < 1 % period differences can move)."""
+    p = _cli(["ident", "indep-rms55.npz", "--config", "indep-jenkins.yaml", "--auto",
+              "--validation", "indep-rms35.npz", "--json", "top55.json", "--quiet"], six_levels)
+    assert p.returncode == 0, p.stderr
+    r = json.loads((six_levels / "top55.json").read_text())
+    assert any("smallest at the top of the search interval" in w and "is taken" in w
+               for w in r["warnings"]), r["warnings"]
+    assert r["nonlinear_vs_linear"]["decision"] == "nonlinear"
+    free = [m["frequency_hz"] for m in json.loads(
+        (six_levels / "indep-rms55.truth.json").read_text())["modes_joint_free"]]
+    found = [m["frequency_hz"] for m in r["modes"]]
+    for f in free[1:4]:
+        assert min(abs(g - f) / f for g in found) < 0.01, (f, found)
+    p = _cli(["validate", "top55.json", "indep-rms20.npz", "--json", "vtop55.json"], six_levels)
+    assert p.returncode == 0, p.stderr
+    for o in json.loads((six_levels / "vtop55.json").read_text())["outputs"]:
+        assert o["error_db"] < o["linear_fit_error_db"] - 2.0, o
