@@ -239,6 +239,12 @@ def _print_auto_summary(res: Any, out=None, warnings: list | tuple = (),
           f"{plain.band_hz(res.modal_dominancy.band_hz)}): "
           f"confidence {res.confidence['level']}", file=out)
     print("  " + res.confidence["statement"], file=out)
+    gone = (((result_json or {}).get("nonlinear_vs_linear") or {}).get("modes") or {}).get(
+        "left_out") or []
+    if gone:   # the count above is the nonlinear model's; the answer lists fewer
+        print(f"  {len(gone)} of them left out of the answer's modes, without physical "
+              "evidence (" + ", ".join(f"{m['frequency_hz']:.4g} Hz" for m in gone)
+              + "; nonlinear vs linear below)", file=out)
     from fnsi_lab.ident.robust.pole_fate import fate_label, pole_fates
 
     rows = res.mdi_table()

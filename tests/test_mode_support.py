@@ -195,8 +195,9 @@ def test_a_kept_jenkins_answer_leaves_out_the_stuck_joint_modes(tmp_path):
                           capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr
     record = tmp_path / "gvt" / "aircraft-rms40.mcap"
-    doc = fnsi_lab.identify(str(record), config=str(tmp_path / "gvt" / "aircraft-jenkins.yaml")
-                            ).to_json()
+    result = fnsi_lab.identify(str(record),
+                              config=str(tmp_path / "gvt" / "aircraft-jenkins.yaml"))
+    doc = result.to_json()
     with fnsi_lab.open_recording(record) as rec:
         truth = rec.truth
     stuck = np.array([m["frequency_hz"] for m in truth["modes"]])
@@ -226,3 +227,12 @@ def test_a_kept_jenkins_answer_leaves_out_the_stuck_joint_modes(tmp_path):
     assert all(fates[round(f, 6)] == "no_evidence" for f in left)
     assert all(f"{f:.4g}" in nvl["statement"].split("left out")[1] for f in left)
     assert all("negative" in m["reason"] for m in nvl["modes"]["left_out"])
+    # the summary's count of physical modes is the nonlinear model's: it says how many of
+    # them the answer leaves out
+    import io
+
+    from fnsi_lab.ident.cli import _print_auto_summary
+
+    text = io.StringIO()
+    _print_auto_summary(result.auto, out=text, result_json=doc)
+    assert f"{len(left)} of them left out of the answer's modes" in text.getvalue()
