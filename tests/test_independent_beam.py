@@ -46,6 +46,18 @@ def _cli(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([FNSI_LAB, *args], capture_output=True, text=True, env=env, timeout=300)
 
 
+def _level_and_its_twin(beam, out: Path, level: str, jenkins: str) -> Path:
+    """The beam at ``level`` N and the same level's record of other phases and noise
+    (``out/v``), with a Jenkins config on the joint whose last fields are ``jenkins``."""
+    assert beam.main(["--out", str(out), "--levels", level]) == 0
+    assert beam.main(["--out", str(out / "v"), "--levels", level, "--seed", "100"]) == 0
+    config = out / "jenkins.yaml"
+    config.write_text((out / "beam-linear.yaml").read_text().replace(
+        "nonlinearities: []", "nonlinearities:\n  - {name: joint, kind: jenkins, "
+        "channels: {jointL: 1, jointR: -1}, " + jenkins))
+    return config
+
+
 def test_locked_joint_simulation_matches_the_exact_frf(beam):
     # The integrator with the joint locked (a linear beam + shaker) against the exact
     # accelerance of the FE model at every excited line, noise-free. The input held at the
@@ -144,12 +156,7 @@ def test_a_slowly_converging_balance_is_not_called_no_steady_state(tmp_path, bea
     from fnsi_lab.ident.refine import validation
 
     monkeypatch.setattr(beam, "SAMPLES_PER_PERIOD", 2048)
-    assert beam.main(["--out", str(tmp_path), "--levels", "3"]) == 0
-    assert beam.main(["--out", str(tmp_path / "v"), "--levels", "3", "--seed", "100"]) == 0
-    config = tmp_path / "jenkins.yaml"
-    config.write_text((tmp_path / "beam-linear.yaml").read_text().replace(
-        "nonlinearities: []", "nonlinearities:\n  - {name: joint, kind: jenkins, "
-        "channels: {jointL: 1, jointR: -1}, slip: 4.0e-05}\ncompare_linear: true"))
+    config = _level_and_its_twin(beam, tmp_path, "3", "slip: 4.0e-05}\ncompare_linear: true")
     run = _cli("ident", str(tmp_path / "beam-rms3.npz"), "--config", str(config), "--auto",
                "--json", str(tmp_path / "r.json"))
     assert run.returncode == 0, run.stderr
@@ -192,12 +199,7 @@ def test_a_hysteretic_balance_over_thousands_of_lines_converges_in_a_few_newton_
     # steps and 1e-6 separate the two with margin.
     import fnsi_lab
 
-    assert beam.main(["--out", str(tmp_path), "--levels", "1"]) == 0
-    assert beam.main(["--out", str(tmp_path / "v"), "--levels", "1", "--seed", "100"]) == 0
-    config = tmp_path / "jenkins.yaml"
-    config.write_text((tmp_path / "beam-linear.yaml").read_text().replace(
-        "nonlinearities: []", "nonlinearities:\n  - {name: joint, kind: jenkins, "
-        "channels: {jointL: 1, jointR: -1}, slip: 2.0e-05}"))
+    config = _level_and_its_twin(beam, tmp_path, "1", "slip: 2.0e-05}")
     run = _cli("ident", str(tmp_path / "beam-rms1.npz"), "--config", str(config), "--order",
                "38", "--json", str(tmp_path / "r.json"))
     assert run.returncode == 0, run.stderr
