@@ -25,12 +25,15 @@ import time
 from dataclasses import replace
 from typing import Any, Mapping, Sequence
 
+import numpy as np
+
 from fnsi_lab import plain
 from fnsi_lab.ident.coefficient_summaries import (coefficient_summaries,
                                                   session_coefficient_spectra)
 from fnsi_lab.ident.config import IdentConfig
 from fnsi_lab.ident.core.basis import Nonlinearity
 from fnsi_lab.ident.core.coefficients import CoefficientSpectra
+from fnsi_lab.ident.core.fnsi import StateSpaceModel
 from fnsi_lab.ident.core.io import IdentInput
 from fnsi_lab.ident.core.result import Coefficient, Mode
 from fnsi_lab.ident.fit import Fit, answer_modes, fit_session
@@ -38,7 +41,8 @@ from fnsi_lab.ident.identification import Identification
 from fnsi_lab.ident.linear_comparison import compare_with_linear
 from fnsi_lab.ident.refine.parameter_search import DEFAULT_SEARCH_ORDER
 from fnsi_lab.ident.refinement import refine
-from fnsi_lab.ident.robust.mode_support import with_mode_evidence
+from fnsi_lab.ident.robust.mode_support import mode_evidence
+from fnsi_lab.ident.robust.options import AutoOptions
 from fnsi_lab.ident.robust.nested import NestedTest
 from fnsi_lab.ident.request import (DEFAULT_ORDERS, IdentRequest, basis_from_truth,
                                     default_config, resolve_request)
@@ -218,7 +222,7 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
                     fit, spectra, nested = before
                     model = fit.model
             # an added mode without physical evidence leaves the answer's list (issue 29)
-            nested = with_mode_evidence(nested, model, session, spectra)
+            nested = _with_mode_evidence(nested, model, session, spectra)
             session.timings_s["linear_fit"] = time.perf_counter() - t3
     session.timings_s["total"] = time.perf_counter() - t0
     for stage, seconds in (spent_s or {}).items():
@@ -228,6 +232,43 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
     return Identification(session, model, fit.method, auto=fit.auto,
                           decomposition=fit.decomposition, output_error=output_error,
                           coefficient_spectra=spectra, nested=nested)
+
+
+def _with_mode_evidence(nested: NestedTest | None, model: StateSpaceModel,
+                        session: IdentSession, spectra: CoefficientSpectra | None
+                        ) -> NestedTest | None:
+    """``nested`` (a kept nonlinear answer's :class:`ident.robust.nested.NestedTest`) with the
+    passivity test of its modes (:func:`ident.robust.mode_support.mode_evidence`); unchanged
+    when the answer is the linear fit's.
+
+    Parameters
+    ----------
+    nested : NestedTest or None
+    model : StateSpaceModel
+        The answer's model.
+    session : IdentSession
+        Its configuration (driving points, elements) and data (output quantity).
+    spectra : CoefficientSpectra or None
+        The answer's coefficient spectra (the determined coefficients' signs).
+    """
+    if nested is None or not nested.supported:
+        return nested
+    frequencies = [float(k["nonlinear_hz"]) for k in nested.modes.get("kept") or []] + [
+        float(f) for f in nested.modes.get("added") or []]
+    if not frequencies:
+        return nested
+    values = {str(c["name"]): float(c["value"]) for c in coefficient_summaries(spectra, session)
+              if c.get("verdict") != "not identifiable" and c.get("value") is not None
+              and np.isscalar(c.get("value"))}
+    rows = mode_evidence(model, sorted(frequencies),
+                         driving_points=session.config.driving_points,
+                         basis=session.config.nonlinearities,
+                         output_quantity=session.data.output_quantity,
+                         coefficient_values=values,
+                         resolution_hz=(session.input.sample_rate_hz
+                                        / session.data.samples_per_period),
+                         data=session.data, detection_sigma=AutoOptions().detection_sigma)
+    return nested.require_mode_evidence(rows)
 
 
 def _before_the_reduction(session: IdentSession, fit: Fit, nested: NestedTest,

@@ -45,7 +45,7 @@ import numpy as np
 
 from fnsi_lab.ident.core.fnsi import StateSpaceModel
 
-__all__ = ["QUANTITY_POWER", "mode_evidence", "with_mode_evidence"]
+__all__ = ["QUANTITY_POWER", "mode_evidence"]
 
 #: The element test needs the element to move the mode: its stiffness share of the mode,
 #: ``kappa = 2 |R_el| / omega_d`` (``R_el`` the receptance residue from the element's column to
@@ -252,41 +252,3 @@ def _element_test(row: dict, lam: complex, c: np.ndarray, b: np.ndarray, q: int,
             failed.append(f"at element {nl.name!r} its modal mass is negative (residue "
                           f"phase {ph:+.0f} deg with the coefficient's sign)")
     return failed
-
-
-def with_mode_evidence(nested, model: StateSpaceModel, session, spectra):
-    """``nested`` (a kept nonlinear answer's :class:`ident.robust.nested.NestedTest`) with the
-    passivity test of its modes (:func:`mode_evidence`); unchanged when the answer is the
-    linear fit's.
-
-    Parameters
-    ----------
-    nested : NestedTest or None
-    model : StateSpaceModel
-        The answer's model.
-    session : IdentSession
-        Its configuration (driving points, elements) and data (output quantity).
-    spectra : CoefficientSpectra or None
-        The answer's coefficient spectra (the determined coefficients' signs).
-    """
-    if nested is None or not nested.supported:
-        return nested
-    frequencies = [float(k["nonlinear_hz"]) for k in nested.modes.get("kept") or []] + [
-        float(f) for f in nested.modes.get("added") or []]
-    if not frequencies:
-        return nested
-    from fnsi_lab.ident.coefficient_summaries import coefficient_summaries
-    from fnsi_lab.ident.robust.options import AutoOptions
-
-    values = {str(c["name"]): float(c["value"]) for c in coefficient_summaries(spectra, session)
-              if c.get("verdict") != "not identifiable" and c.get("value") is not None
-              and np.isscalar(c.get("value"))}
-    rows = mode_evidence(model, sorted(frequencies),
-                         driving_points=session.config.driving_points,
-                         basis=session.config.nonlinearities,
-                         output_quantity=session.data.output_quantity,
-                         coefficient_values=values,
-                         resolution_hz=(session.input.sample_rate_hz
-                                        / session.data.samples_per_period),
-                         data=session.data, detection_sigma=AutoOptions().detection_sigma)
-    return nested.require_mode_evidence(rows)
