@@ -235,3 +235,41 @@ def test_the_stick_response_is_the_exact_response_of_each_line_to_itself():
     # a real-linear map: c -> P c + Q conj(c); the own-line response is P
     own = np.array([(response(k, 1.0) - 1j * response(k, 1j)) / 2 for k in lines])
     np.testing.assert_allclose(_stick_response(anchors, lines), own, atol=1e-12)
+
+
+def _steady_spectra(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Force and outputs averaged over the steady periods, on the excited lines 3-140 Hz:
+    ``(frequency_hz (F,), U (F,), Y (F, p))``."""
+    with np.load(path) as z:
+        n, skip = int(z["N"]), int(z["transient_samples"])
+        u = z["u"][skip:, 0].reshape(-1, n).mean(axis=0)
+        y = z["y"][skip:].reshape(-1, n, z["y"].shape[1]).mean(axis=0)
+        f = np.fft.rfftfreq(n, 1 / float(z["fs"]))
+    U, Y = np.fft.rfft(u), np.fft.rfft(y, axis=0)
+    band = (f >= 3) & (f <= 140)
+    lines = band & (np.abs(U) > 0.1 * np.median(np.abs(U[band])))
+    return f[lines], U[lines], Y[lines]
+
+
+def test_a_linear_answer_predicts_another_realisation_as_well_as_the_record_allows(tmp_path, beam):
+    # 0.002 N: the joint at 1 % of its yield displacement, linear within the 50 dB noise.
+    # The floor: the identified record's own measured FRF applied to the other realisation's
+    # force (it carries the noise of both records): -51.3 / -53.2 / -53.3 / -50.8 dB. FNSI's
+    # C left its linear answer 10-16 dB above it (-35.0 / -43.0 / -38.8 / -40.2 dB); with C
+    # and D by least squares for its poles it is -49.1 / -52.3 / -54.6 / -52.5, within 2.2
+    # dB of it. 5 dB above the floor separates the two with margin.
+    import fnsi_lab
+
+    _level_and_its_twin(beam, tmp_path, "0.002", "slip: 2.0e-05}")
+    run = _cli("ident", str(tmp_path / "beam-rms0.002.npz"), "--config",
+               str(tmp_path / "beam-linear.yaml"), "--auto", "--json", str(tmp_path / "l.json"))
+    assert run.returncode == 0, run.stderr
+    check = fnsi_lab.validate_model(str(tmp_path / "l.json"), str(tmp_path / "v" / "beam-rms0.002.npz"))
+    _, U1, Y1 = _steady_spectra(tmp_path / "beam-rms0.002.npz")
+    _, U2, Y2 = _steady_spectra(tmp_path / "v" / "beam-rms0.002.npz")
+    floor = 10 * np.log10(np.sum(np.abs(Y2 - Y1 / U1[:, None] * U2[:, None]) ** 2, axis=0)
+                          / np.sum(np.abs(Y2) ** 2, axis=0))
+    rows = check.to_json()["outputs"]
+    assert len(rows) == floor.size
+    for row, limit in zip(rows, floor):
+        assert row["linear_error_db"] < limit + 5.0, (row, floor)

@@ -52,8 +52,9 @@ SIGNIFICANCE = 0.01
 MODE_MATCH = 0.05
 
 
-def _weights(data: FrequencyData) -> tuple[np.ndarray, str]:
-    """``(F, p)`` weights and what they are."""
+def residual_weights(data: FrequencyData) -> tuple[np.ndarray, str]:
+    """``(F, p)`` weights of the nested test's residual (inverse noise variances, smoothed
+    over 8 lines; without a noise estimate each output's inverse power) and what they are."""
     if data.noise_var is not None:
         var = smooth_lines(np.asarray(data.noise_var, float), 8)
         floor = 1e-12 * float(np.mean(var)) if np.any(var > 0) else 1.0
@@ -66,7 +67,7 @@ def _weights(data: FrequencyData) -> tuple[np.ndarray, str]:
 def weighted_residual(model: StateSpaceModel, data: FrequencyData,
                       weights: np.ndarray | None = None) -> float:
     """``sum w |Y - Yhat|^2`` over the processed lines (``data`` must match ``model``'s inputs)."""
-    w = _weights(data)[0] if weights is None else weights
+    w = residual_weights(data)[0] if weights is None else weights
     r = data.Y - model.steady_state_output(data)
     return float(np.sum(w * np.abs(r) ** 2))
 
@@ -357,7 +358,7 @@ def nested_test(model_nl: StateSpaceModel, data_nl: FrequencyData,
     """
     from scipy.special import fdtrc   # F survival function (scipy.stats: +0.35 s of import)
 
-    w, how = _weights(data_nl)
+    w, how = residual_weights(data_nl)
     v_nl = weighted_residual(model_nl, data_nl, w)
     v_lin = weighted_residual(model_lin, data_lin, w)
     k_nl, k_lin = parameter_count(model_nl, d_zero), parameter_count(model_lin, d_zero)

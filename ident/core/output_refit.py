@@ -1,0 +1,85 @@
+"""The output matrices ``C`` and ``D`` of an identified model, by least squares for its poles.
+
+FNSI takes ``C`` from the extended observability matrix (the first block row of the
+subspace's singular vectors) and then ``B``, ``D`` by least squares for that ``A`` and ``C``
+(:mod:`ident.core.bd`). The poles are good; ``C`` carries the subspace's noise and bias:
+on a linear beam record (bench/RESULTS.md, "How far FNSI's linear model is from the data")
+FNSI's answer left 256 noise variances per line and output, and predicted another
+realisation 10-16 dB above what the record allows; ``C`` and ``D`` by least squares for the
+same ``A`` and ``B`` left 10.6 and reached that floor. For given ``A`` and ``B`` the output
+is linear in ``C`` and ``D``:
+
+    ``Y(k) = C X(k) + D E(k)``,  ``X(k) = (z_k I - A)^{-1} B E(k)``
+
+so each output's row of ``[C, D]`` is one weighted linear least-squares problem over the
+lines (real unknowns: real and imaginary parts stacked). The poles, and with them every
+mode's frequency and damping, do not move.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fnsi_lab.ident.core.frequency_data import FrequencyData
+from fnsi_lab.ident.core.state_space import StateSpaceModel, eigen_decomposition, make_model
+
+__all__ = ["refit_output_matrices", "state_response"]
+
+
+def state_response(model: StateSpaceModel, data: FrequencyData) -> np.ndarray:
+    """``X(k) = (z_k I - A)^{-1} B E(k)`` on the data's lines: shape (F, n), complex."""
+    a, b = model.a_d, model.b_d
+    z, E = np.asarray(data.z), np.asarray(data.E_physical)
+    mu, phi, ok = eigen_decomposition(a)
+    if ok:
+        modal = np.linalg.solve(phi, b) @ E.T                    # (n, F)
+        return (phi @ (modal / (z[None, :] - mu[:, None]))).T
+    eye = np.eye(a.shape[0])
+    return np.stack([np.linalg.solve(zk * eye - a, b @ ek) for zk, ek in zip(z, E)])
+
+
+def refit_output_matrices(model: StateSpaceModel, data: FrequencyData, weights: np.ndarray, *,
+                          d_zero: bool) -> StateSpaceModel:
+    """``model`` with ``C`` and ``D`` re-estimated by weighted least squares for its ``A``, ``B``.
+
+    Parameters
+    ----------
+    model : StateSpaceModel
+        Identified on ``data`` (same extended inputs).
+    data : FrequencyData
+    weights : ndarray, shape (F, p)
+        Per line and output, on the squared residual (the nested test's: inverse noise
+        variances, :func:`ident.robust.nested.weighted_residual`).
+    d_zero : bool
+        Keep ``D = 0``.
+
+    Returns
+    -------
+    StateSpaceModel
+        The same poles, time base and names; ``model`` itself when the refit does not lower
+        the weighted residual (a degenerate regression).
+    """
+    X = state_response(model, data)                              # (F, n)
+    E = np.asarray(data.E_physical)                              # (F, m_e)
+    R = X if d_zero else np.concatenate([X, E], axis=1)          # (F, n [+ m_e])
+    Y = np.asarray(data.Y)
+    w = np.sqrt(np.asarray(weights, float))
+    n = X.shape[1]
+    rows = []
+    for o in range(Y.shape[1]):
+        A = R * w[:, o:o + 1]
+        b = Y[:, o] * w[:, o]
+        theta, *_ = np.linalg.lstsq(np.vstack([A.real, A.imag]),
+                                    np.concatenate([b.real, b.imag]), rcond=None)
+        rows.append(theta)
+    theta = np.stack(rows)                                       # (p, n [+ m_e])
+    c_d = theta[:, :n]
+    d_d = np.zeros_like(model.d_d) if d_zero else theta[:, n:]
+    before = np.sum(weights * np.abs(Y - X @ model.c_d.T - E @ model.d_d.T) ** 2)
+    after = np.sum(weights * np.abs(Y - X @ c_d.T - E @ d_d.T) ** 2)
+    if not after < before:
+        return model
+    return make_model(model.a_d, model.b_d, c_d, d_d, sample_rate_hz=model.sample_rate_hz,
+                      n_inputs=model.n_inputs, input_names=model.input_names,
+                      output_names=model.output_names, time_base=model.time_base,
+                      bilinear_period_s=model.bilinear_period_s)
