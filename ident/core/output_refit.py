@@ -49,7 +49,7 @@ def refit_output_matrices(model: StateSpaceModel, data: FrequencyData, weights: 
     data : FrequencyData
     weights : ndarray, shape (F, p)
         Per line and output, on the squared residual (the nested test's: inverse noise
-        variances, :func:`ident.robust.nested.weighted_residual`).
+        variances, :func:`ident.robust.nested.residual_weights`).
     d_zero : bool
         Keep ``D = 0``.
 
