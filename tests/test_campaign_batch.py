@@ -191,13 +191,19 @@ def test_running_scheduler_and_two_workers(recordings, tmp_path):
 
 
 def test_unreachable_scheduler_is_one_line_usage_error(recordings, tmp_path, capsys):
+    # nothing listens on port 9: refused at once. Dask's client retried it for its whole
+    # 30 s timeout before saying so; 10 s leaves the machine's load a wide margin.
+    import time
+
     root, good, _ = recordings
+    t0 = time.perf_counter()
     status = main(["batch", str(good[0]), "--config", CONFIG, "--order", "6",
                    "--out", str(tmp_path / "c.parquet"), "--quiet",
                    "--scheduler", "tcp://127.0.0.1:9"])
     err = capsys.readouterr().err
     assert status == 2 and "cannot connect" in err and "fix:" in err
     assert len(err.strip().splitlines()) == 1
+    assert time.perf_counter() - t0 < 10.0
 
 
 def test_inputs_config_and_outputs_are_checked_first(recordings, tmp_path, capsys):

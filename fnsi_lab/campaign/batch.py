@@ -25,6 +25,7 @@ import hashlib
 import json
 import logging
 import os
+import socket
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -616,6 +617,28 @@ def _interrupt_state() -> Iterator[None]:
             logging.getLogger(name).setLevel(level)
 
 
+def _refuses(scheduler: str, probe_s: float = 3.0) -> None:
+    """Raise :class:`ConnectionRefusedError` at once when nothing listens at the scheduler's
+    ``tcp://host:port``: Dask's client retries a refused connection until its whole timeout
+    (30 s measured for ``tcp://127.0.0.1:9``) before saying so. Anything else (no answer
+    within ``probe_s``, another scheme, no port) is left to the client and its timeout."""
+    from urllib.parse import urlsplit
+
+    parts = urlsplit(scheduler)
+    try:
+        host, port = parts.hostname, parts.port
+    except ValueError:
+        return
+    if parts.scheme != "tcp" or not host or not port:
+        return
+    try:
+        socket.create_connection((host, port), timeout=probe_s).close()
+    except ConnectionRefusedError:
+        raise
+    except OSError:
+        return
+
+
 @contextlib.contextmanager
 def dask_client(scheduler: str = "local", workers: int | None = None, *,
                 connect_timeout_s: float = 30.0) -> Iterator[Any]:
@@ -669,6 +692,7 @@ def dask_client(scheduler: str = "local", workers: int | None = None, *,
                 raise
         return
     try:
+        _refuses(scheduler)
         client = Client(scheduler, timeout=f"{connect_timeout_s}s")
     except (OSError, TimeoutError, ValueError) as exc:
         raise SchedulerError(f"--scheduler {scheduler}: cannot connect ({_one_line(exc)}) "
