@@ -18,9 +18,10 @@ The equations are solved by damped Newton steps (switching the nonlinear forces 
 when that fails from the measured motion). Each step solves the linearised balance by GMRES,
 preconditioned by a dense LU of the coupling between the *strong* lines (those that hold all
 but ``1e-4`` of the motion's energy, the excitation's lines in practice), the weak lines
-following them with their own-line response (:meth:`HarmonicBalance._diagonal_block`). The same linearisation gives the predicted motion's sensitivity to the
-model's parameters (:meth:`HarmonicBalance.solve_linear`, :meth:`HarmonicBalance.apply_slopes`),
-used by :mod:`ident.refine.output_error`. docs/ident.md, "The output-error refinement", explains why.
+following them with their own-line response (:meth:`HarmonicBalance._diagonal_block`). The
+same linearisation gives the predicted motion's sensitivity to the model's parameters
+(:meth:`HarmonicBalance.solve_linear`, :meth:`HarmonicBalance.apply_slopes`), used by
+:mod:`ident.refine.output_error`. docs/ident.md, "The output-error refinement", explains why.
 
 Shapes: ``R`` realisations, ``F0`` lines per realisation, ``n_el`` elements, ``s`` basis
 columns, ``m`` forces; predicted motions ``(R, F0, n_el)`` complex (numpy DFT over one
