@@ -220,9 +220,10 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
                                                progress=progress)
                 if before is not None:
                     fit, spectra, nested = before
+                    summaries = coefficient_summaries(spectra, session)   # the full model's
                     model = fit.model
             # an added mode without physical evidence leaves the answer's list (issue 29)
-            nested = _with_mode_evidence(nested, model, session, spectra)
+            nested = _with_mode_evidence(nested, model, session, summaries)
             session.timings_s["linear_fit"] = time.perf_counter() - t3
     session.timings_s["total"] = time.perf_counter() - t0
     for stage, seconds in (spent_s or {}).items():
@@ -235,7 +236,7 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
 
 
 def _with_mode_evidence(nested: NestedTest | None, model: StateSpaceModel,
-                        session: IdentSession, spectra: CoefficientSpectra | None
+                        session: IdentSession, summaries: Sequence[dict]
                         ) -> NestedTest | None:
     """``nested`` (a kept nonlinear answer's :class:`ident.robust.nested.NestedTest`) with the
     passivity test of its modes (:func:`ident.robust.mode_support.mode_evidence`); unchanged
@@ -248,8 +249,10 @@ def _with_mode_evidence(nested: NestedTest | None, model: StateSpaceModel,
         The answer's model.
     session : IdentSession
         Its configuration (driving points, elements) and data (output quantity).
-    spectra : CoefficientSpectra or None
-        The answer's coefficient spectra (the determined coefficients' signs).
+    summaries : sequence of dict
+        The answer's coefficients with their verdicts
+        (:func:`ident.coefficient_summaries.coefficient_summaries`, computed once: the
+        determined coefficients' signs).
     """
     if nested is None or not nested.supported:
         return nested
@@ -257,7 +260,7 @@ def _with_mode_evidence(nested: NestedTest | None, model: StateSpaceModel,
         float(f) for f in nested.modes.get("added") or []]
     if not frequencies:
         return nested
-    values = {str(c["name"]): float(c["value"]) for c in coefficient_summaries(spectra, session)
+    values = {str(c["name"]): float(c["value"]) for c in summaries
               if c.get("verdict") != "not identifiable" and c.get("value") is not None
               and np.isscalar(c.get("value"))}
     rows = mode_evidence(model, sorted(frequencies),

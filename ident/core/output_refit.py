@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from fnsi_lab.ident.core.frequency_data import FrequencyData
-from fnsi_lab.ident.core.state_space import StateSpaceModel, eigen_decomposition, make_model
+from fnsi_lab.ident.core.state_space import StateSpaceModel, dt_modal, make_model
 
 __all__ = ["refit_output_matrices", "state_response"]
 
@@ -30,7 +30,7 @@ def state_response(model: StateSpaceModel, data: FrequencyData) -> np.ndarray:
     """``X(k) = (z_k I - A)^{-1} B E(k)`` on the data's lines: shape (F, n), complex."""
     a, b = model.a_d, model.b_d
     z, E = np.asarray(data.z), np.asarray(data.E_physical)
-    mu, phi, ok = eigen_decomposition(a)
+    mu, phi, ok = dt_modal(model)   # the model's cached eigen-decomposition
     if ok:
         modal = np.linalg.solve(phi, b) @ E.T                    # (n, F)
         return (phi @ (modal / (z[None, :] - mu[:, None]))).T
@@ -82,4 +82,4 @@ def refit_output_matrices(model: StateSpaceModel, data: FrequencyData, weights: 
     return make_model(model.a_d, model.b_d, c_d, d_d, sample_rate_hz=model.sample_rate_hz,
                       n_inputs=model.n_inputs, input_names=model.input_names,
                       output_names=model.output_names, time_base=model.time_base,
-                      bilinear_period_s=model.bilinear_period_s)
+                      bilinear_period_s=model.bilinear_period_s, _modal_dt=dt_modal(model))
