@@ -61,6 +61,19 @@ class Progress:
                 self.stream.write(f"{self.label}: {self.done}/{self.total} ({elapsed:.1f} s) {note}\n")
                 self.stream.flush()
 
+    def finish(self, note: str = "") -> None:
+        """End a bar that stopped short of ``total`` (an iteration that converged early): the
+        line is closed on a terminal, and the last count printed in a log."""
+        if not self.enabled or not 0 < self.done < self.total:
+            return
+        elapsed = time.monotonic() - self._t0
+        if self._tty:
+            self.stream.write(f" {note}\n" if note else "\n")
+        else:
+            tail = f" {note}" if note else ""
+            self.stream.write(f"{self.label}: {self.done} ({elapsed:.1f} s){tail}\n")
+        self.stream.flush()
+
     def __call__(self, items: Iterable[T]) -> Iterator[T]:
         for item in items:
             yield item

@@ -162,7 +162,7 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
         _report_left_out(session, left_out)
     fit = fit_session(session, order=order, sweep=sweep, reduce_at=reduce_at,
                       max_order=max_order, block_rows=block_rows, progress=progress)
-    output_error = refine(session, fit)
+    output_error = refine(session, fit, progress=progress)
     model = output_error.model if output_error is not None else fit.model
     t2 = time.perf_counter()
     spectra = session_coefficient_spectra(session, model)

@@ -25,6 +25,7 @@ from fnsi_lab.ident.refine.output_error import (MAX_MISFIT, OutputErrorFit, omit
                                                 refine_output_error, refinement_case)
 from fnsi_lab.ident.robust.reduction import reduce_model
 from fnsi_lab.ident.session import IdentSession
+from fnsi_lab.progress import Progress
 
 __all__ = ["refine", "SPLIT_HALF_BANDWIDTHS"]
 
@@ -59,6 +60,9 @@ def _structural_start(session: IdentSession, ident: Fit) -> StateSpaceModel:
 #: 5 % in a robust answer, were a candidate; the score test would keep them, at the cost
 #: of a second fit).
 SPLIT_HALF_BANDWIDTHS = 3.0
+#: Levenberg-Marquardt steps at most: the chains and SmallSat converge in 5-9
+#: (docs/ident.md, "The output-error refinement").
+MAX_STEPS = 30
 
 
 def _split_candidates(ident: Fit) -> list[int]:
@@ -157,7 +161,7 @@ def _fit_without_split_modes(session: IdentSession, ident: Fit,
     return fit
 
 
-def refine(session: IdentSession, ident: Fit) -> Any:
+def refine(session: IdentSession, ident: Fit, progress: Any = None) -> Any:
     """The output-error refinement of FNSI's answer that the configuration asks for
     (docs/ident.md).
 
@@ -169,7 +173,9 @@ def refine(session: IdentSession, ident: Fit) -> Any:
     (:data:`ident.refine.output_error.MAX_MISFIT`); ``output-error`` always runs and keeps it. The
     refined basis parameters and basis columns replace the session's. The decision and its
     numbers go to ``session.evidence['output_error']``. Returns the
-    :class:`ident.refine.output_error.OutputErrorFit` kept, or None.
+    :class:`ident.refine.output_error.OutputErrorFit` kept, or None. ``progress`` (truthy)
+    reports each Levenberg-Marquardt step on stderr: a step of a hysteretic joint's
+    model takes up to a minute.
     """
     cfg, data = session.config, session.data
     if cfg.refine == "none" or not cfg.nonlinearities:
@@ -186,10 +192,16 @@ def refine(session: IdentSession, ident: Fit) -> Any:
     t0 = time.perf_counter()
 
     def run(start: StateSpaceModel) -> OutputErrorFit:
-        return refine_output_error(data, cfg.nonlinearities, start, estimated=estimated,
-                                   d_zero=session.d_zero, watch=_answer_values(session),
-                                   give_up_above=(100 * MAX_MISFIT if cfg.refine == "auto"
-                                                  else None))
+        bar = Progress(MAX_STEPS, "output-error refinement (steps)", enabled=bool(progress))
+        try:
+            return refine_output_error(
+                data, cfg.nonlinearities, start, estimated=estimated, d_zero=session.d_zero,
+                watch=_answer_values(session), max_iterations=MAX_STEPS,
+                give_up_above=100 * MAX_MISFIT if cfg.refine == "auto" else None,
+                on_step=lambda step, misfit: bar.update(
+                    note=f"misfit {misfit:.3g}"))
+        finally:
+            bar.finish()
     try:
         fit = _fit_without_split_modes(session, ident, run) or run(
             _structural_start(session, ident))

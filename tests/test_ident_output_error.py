@@ -262,6 +262,43 @@ def test_acceleration_outputs_are_refined():
     assert np.all(np.abs(coef) < 5e-4), coef
 
 
+def test_refinement_reports_its_steps_on_stderr(capsys):
+    """A step can take a minute (a hysteretic joint's model): with progress on, each
+    Levenberg-Marquardt step is reported with its misfit, and the line is closed when the
+    fit stops short of the step limit."""
+    src, _ = _chain(periods=4)
+    res = fnsi_lab.identify(src, _config(), order=6, progress=True)
+    err = capsys.readouterr().err
+    assert res.output_error is not None, res.to_json()["output_error"]
+    steps = res.output_error.iterations
+    assert 0 < steps < 30
+    lines = [ln for ln in err.splitlines() if ln.startswith("output-error refinement (steps)")]
+    assert lines, err
+    assert lines[-1].split(":")[1].split()[0] == str(steps), lines  # the last count printed
+    assert "misfit " in err
+
+
+def test_covariance_with_a_parameter_no_line_determines():
+    """An output row's own block can be singular (a parameter with no sensitivity): the
+    shared parameters' covariance is still the Schur complement's pseudo-inverse, equal to
+    the covariance of the problem without that parameter (a LinAlgError after 23 minutes of
+    a forced refinement of the aircraft-like GVT before)."""
+    from fnsi_lab.ident.refine.output_error_fit import _shared_covariance
+    rng = np.random.default_rng(0)
+    J_s = rng.standard_normal((2, 40, 3))        # two output rows' lines, shared parameters
+    J_o = rng.standard_normal((2, 40, 4))        # each row's own four parameters
+    J_o[1, :, 3] = 0.0                           # one that no line determines
+    A = np.einsum("ols,olt->st", J_s, J_s)
+    N = np.einsum("oln,olm->onm", J_o, J_o)
+    M = np.einsum("oln,ols->ons", J_o, J_s)
+    cov = _shared_covariance(A, N, M)
+    J = np.zeros((80, 3 + 4 + 3))                # the problem without that parameter
+    J[:, :3] = J_s.reshape(80, 3)
+    J[:40, 3:7] = J_o[0]
+    J[40:, 7:] = J_o[1, :, :3]
+    assert np.allclose(cov, np.linalg.inv(J.T @ J)[:3, :3], rtol=1e-9)
+
+
 def test_refine_none_keeps_fnsi_and_a_failed_refinement_says_so(monkeypatch):
     src, _ = _chain(periods=4)
     res = fnsi_lab.identify(src, _config(refine="none"), order=6)

@@ -92,7 +92,9 @@ def refine_output_error(data: FrequencyData, basis: Sequence[Nonlinearity],
                         tolerance: float = 1e-3,
                         watch: Callable[[StateSpaceModel, tuple], Any] | None = None,
                         watch_tolerance: float = 1e-5,
-                        give_up_above: float | None = None) -> OutputErrorFit:
+                        give_up_above: float | None = None,
+                        on_step: Callable[[int, float], None] | None = None
+                        ) -> OutputErrorFit:
     """Refine an identified model (and searched basis parameters) on its own output error.
 
     Parameters
@@ -116,7 +118,10 @@ def refine_output_error(data: FrequencyData, basis: Sequence[Nonlinearity],
     tolerance : float
         Stop when a step lowers ``V`` by less than this: with noise weights ``V`` counts
         noise variances, and a decrease of ``dV`` means the parameters moved by about
-        ``sqrt(2 dV)`` standard deviations (1e-3: 0.045 std); unweighted, a fraction of ``V``.
+        ``sqrt(2 dV)`` standard deviations (1e-3: 0.045 std). A model that leaves more than
+        the noise (``V`` per line and output, the misfit, above 1) counts ``dV`` in misfits:
+        its parameters' standard deviations grow with its square root. Unweighted, a
+        fraction of ``V``.
     watch : callable, optional
         ``watch(model, basis)`` gives the quantities of interest (e.g. the nonlinear
         coefficients); the fit also stops when a step changes none of them by more than
@@ -130,6 +135,9 @@ def refine_output_error(data: FrequencyData, basis: Sequence[Nonlinearity],
         static position of integrated outputs: 1e7 noise variances) is not worth 30 steps,
         while a poor start still falling fast is (velocities whose searched gaps were
         +11 / +22 % off: 26 noise variances after 3 steps, 1.00 after 6).
+    on_step : callable, optional
+        ``on_step(step, misfit)`` after each Levenberg-Marquardt step (``misfit``: ``V`` per
+        line and output), for a progress report: a step can take seconds to a minute.
 
     Returns
     -------
@@ -152,7 +160,8 @@ def refine_output_error(data: FrequencyData, basis: Sequence[Nonlinearity],
         weights = np.broadcast_to(1.0 / np.where(rms > 0, rms, 1.0), data.Y.shape)
     options = dict(estimated=tuple(estimated), weights=weights, weighted=weighted, d_zero=d_zero,
                    max_iterations=max_iterations, tolerance=tolerance, watch=watch,
-                   watch_tolerance=watch_tolerance, give_up_above=give_up_above)
+                   watch_tolerance=watch_tolerance, give_up_above=give_up_above,
+                   on_step=on_step)
     if data.output_quantity != "displacement" or data.motion is None \
             or data.motion.line_noise is None:
         return fit_output_error(data, basis, model, t0=t0, **options)

@@ -82,7 +82,10 @@ def _shared_covariance(A, N, M) -> np.ndarray:
     """``(J^T J)^-1`` restricted to the shared parameters (the Schur complement's inverse)."""
     ds, _, As, Ns, Ms = _scaled_blocks(A, N, M)
     if N.shape[0]:
-        As = As - np.einsum("ons,ont->st", Ms, np.linalg.solve(Ns, Ms))
+        # pseudo-inverse: an output row's own block can be singular (a parameter no line
+        # determines: GVT Jenkins + stop after 30 steps, LinAlgError after 23 minutes)
+        As = As - np.einsum("ons,ont->st", Ms,
+                            np.linalg.pinv(Ns, rcond=1e-13, hermitian=True) @ Ms)
     return np.linalg.pinv(As, rcond=1e-13, hermitian=True) / np.outer(ds, ds)
 
 class BelowBandDisagrees(Exception):
@@ -96,7 +99,7 @@ class BelowBandDisagrees(Exception):
 def fit_output_error(data: FrequencyData, basis: Sequence[Nonlinearity],
                      model: StateSpaceModel, *, estimated, weights, weighted, d_zero,
                      max_iterations, tolerance, watch, watch_tolerance, give_up_above, t0,
-                     predict_below=None) -> OutputErrorFit:
+                     predict_below=None, on_step=None) -> OutputErrorFit:
     """:func:`ident.refine.output_error.refine_output_error` with the lines under the band
     predicted or not (displacements: raises :class:`BelowBandDisagrees` when the start's
     prediction there is off by more than ``_BELOW_BAND_START_MAX``)."""
@@ -136,11 +139,18 @@ def fit_output_error(data: FrequencyData, basis: Sequence[Nonlinearity],
                 continue
             balance_its += new["state"].iterations
             if c_new < cost:
-                decrease = (cost - c_new) / (1.0 if weighted else cost)
+                # in units of the residual variance: a model that misses dynamics leaves
+                # s^2 = misfit noise variances per line, and its parameters' standard
+                # deviations scale with s (GVT Jenkins + stop, misfit 750: seven steps of
+                # a few noise variances each moved nothing, 40 s a step)
+                decrease = (cost - c_new) / (max(1.0, cost / n_lines_out) if weighted
+                                             else cost)
                 point, cost, accepted = new, c_new, True
                 lam = max(lam / 10, 1e-9)
                 break
             lam *= 10
+        if on_step is not None:
+            on_step(it, cost / n_lines_out)
         pairs, real = _wandered(point["modal"], origin, line_step)
         if accepted and (pairs.any() or real.any()):
             if pairs.all() and real.all():
