@@ -205,9 +205,12 @@ def refine(session: IdentSession, ident: Fit, progress: Any = None) -> Any:
     try:
         fit = _fit_without_split_modes(session, ident, run) or run(
             _structural_start(session, ident))
-    except IdentError as exc:
-        decision["reason"] = f"not applied: {exc}"
-        session.warnings.append(f"the output-error refinement was not applied ({exc}); "
+    except (IdentError, np.linalg.LinAlgError) as exc:
+        # a numerical failure of the optional refinement leaves FNSI's answer, said in a
+        # warning, never a traceback that loses the identification
+        why = str(exc) if isinstance(exc, IdentError) else f"a singular system: {exc}"
+        decision["reason"] = f"not applied: {why}"
+        session.warnings.append(f"the output-error refinement was not applied ({why}); "
                                 "the nonlinear model is FNSI's")
         return None
     session.timings_s["output_error"] = time.perf_counter() - t0

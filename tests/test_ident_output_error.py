@@ -316,6 +316,13 @@ def test_refine_none_keeps_fnsi_and_a_failed_refinement_says_so(monkeypatch):
     assert any("output-error refinement was not applied" in w for w in j["warnings"])
     assert [c["value"] for c in j["coefficients"]] == [c["value"] for c in ref.coefficients]
 
+    def singular(*args, **kwargs):
+        raise np.linalg.LinAlgError("Singular matrix")
+    monkeypatch.setattr(refinement, "refine_output_error", singular)
+    j = fnsi_lab.identify(src, _config(), order=6).to_json()
+    assert j["output_error"]["reason"] == "not applied: a singular system: Singular matrix"
+    assert [c["value"] for c in j["coefficients"]] == [c["value"] for c in ref.coefficients]
+
 
 def test_refine_option_is_validated():
     with pytest.raises(IdentConfigError, match="refine"):
