@@ -80,7 +80,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--phase-seed", type=int, default=0,
                     help="the campaign's first multisine realisation (bench/aircraft.py; "
                          "another value: the same campaign with other realisations)")
+    ap.add_argument("--without-refit", action="store_true",
+                    help="keep FNSI's output matrices (no own-motion refit, docs/ident.md): "
+                         "the A/B measure of what the refit changes")
     args = ap.parse_args(argv)
+    if args.without_refit:
+        import fnsi_lab.ident.pipeline as pipeline
+        pipeline.refit_on_its_record = lambda session, model: model
     rows = write_campaign(args.work, args.levels, force=True, phase_seed=args.phase_seed)
     if args.together:
         return _together(args, rows)
@@ -128,6 +134,7 @@ def main(argv: list[str] | None = None) -> int:
                  "decided_on_n_rms": ([o["level_n_rms"] for o in decided_on[i]]
                                       if i in decided_on else [level]),
                  "refused": [r["name"] for r in nvl.get("refused") or []],
+                 "output_refit": nl_doc.get("output_refit"),
                  "linear": {"order": lin.order, "modes": _modes(lin, truth),
                             "damping": {float(m["frequency_hz"]): m["damping_ratio"]
                                         for m in lin.modes}},
@@ -149,7 +156,8 @@ def main(argv: list[str] | None = None) -> int:
                 entry[kind]["validation"] = {"error": str(exc)}
         table.append(entry)
     suffix = ("" if args.joint == "jenkins" else f"-{args.joint}") + (
-        f"-{args.decide_on}" if args.decide_on != "own" else "")
+        f"-{args.decide_on}" if args.decide_on != "own" else "") + (
+        "-without-refit" if args.without_refit else "")
     out = ROOT / "out" / f"aircraft_validation{suffix}.json"
     out.parent.mkdir(exist_ok=True)
     from fnsi_lab.outputs import dumps

@@ -220,6 +220,16 @@ def _print_refinement(res: dict, out=None) -> None:
         print(f"  {c['name']}: value {c['value']:.6g}{unit}{err}{verdict_text(c)}", file=out)
 
 
+def _print_output_refit(res: dict, out=None) -> None:
+    """The kept nonlinear answer's output matrices refit on its own motion (the JSON's
+    ``output_refit``; docs/ident.md): one line when it ran."""
+    refit = res.get("output_refit")
+    if not refit:
+        return
+    print(f"output matrices (docs/ident.md, own-motion refit): {refit['reason']}",
+          file=out or sys.stdout)
+
+
 def _print_auto_summary(res: Any, out=None, warnings: list | tuple = (),
                         refined: bool = False, units: dict | None = None,
                         fates: list | None = None, result_json: dict | None = None) -> None:
@@ -399,6 +409,7 @@ def run_ident(args: argparse.Namespace) -> int:
             _print_summary(res)
         _print_refinement(res)
         _print_nested(res)
+        _print_output_refit(res)
         _print_curves(res)
     write_json(res, args.json_out, force=True)
     if suggest is not None:   # after the result: a suggestion never costs the JSON

@@ -38,7 +38,7 @@ from fnsi_lab.ident.core.io import IdentInput
 from fnsi_lab.ident.core.result import Coefficient, Mode
 from fnsi_lab.ident.fit import Fit, answer_modes, fit_session
 from fnsi_lab.ident.identification import Identification
-from fnsi_lab.ident.linear_comparison import compare_with_linear
+from fnsi_lab.ident.linear_comparison import compare_with_linear, refit_on_its_record
 from fnsi_lab.ident.refine.parameter_search import DEFAULT_SEARCH_ORDER
 from fnsi_lab.ident.refinement import refine
 from fnsi_lab.ident.robust.mode_support import mode_evidence
@@ -214,7 +214,8 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
             nested = compare_with_linear(
                 session, model, modes, verdicts, order=order,
                 sweep=sweep, reduce_at=reduce_at, max_order=max_order, block_rows=block_rows,
-                validation=validation, progress=progress)
+                validation=validation, progress=progress,
+                refit=lambda start: refit_on_its_record(session, start))
             if nested is not None and not nested.supported and output_error is None:
                 before = _before_the_reduction(session, fit, nested, validation,
                                                progress=progress)
@@ -222,6 +223,9 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
                     fit, spectra, nested = before
                     summaries = coefficient_summaries(spectra, session)   # the full model's
                     model = fit.model
+            if nested is not None and nested.supported and nested.answer_model is not None:
+                model, spectra, summaries = _refit_answer(session, model, spectra, summaries,
+                                                          nested.answer_model)
             # an added mode without physical evidence leaves the answer's list (issue 29)
             nested = _with_mode_evidence(nested, model, session, summaries)
             session.timings_s["linear_fit"] = time.perf_counter() - t3
@@ -233,6 +237,24 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
     return Identification(session, model, fit.method, auto=fit.auto,
                           decomposition=fit.decomposition, output_error=output_error,
                           coefficient_spectra=spectra, nested=nested)
+
+
+def _refit_answer(session: IdentSession, model: StateSpaceModel,
+                  spectra: CoefficientSpectra | None, summaries: list[dict],
+                  refit: StateSpaceModel
+                  ) -> tuple[StateSpaceModel, CoefficientSpectra | None, list[dict]]:
+    """The kept answer's model with its output matrices refit on its own motion, and its
+    coefficients read from it (:func:`ident.linear_comparison.refit_on_its_record`); the
+    tested model and its coefficients when the refit leaves no coefficient determined (the
+    nested test kept the answer for a determined one)."""
+    refit_spectra = session_coefficient_spectra(session, refit)
+    refit_summaries = coefficient_summaries(refit_spectra, session)
+    if all(c.get("verdict") == "not identifiable" for c in refit_summaries):
+        session.evidence["output_refit"] = {
+            **session.evidence.get("output_refit", {}), "applied": False,
+            "reason": "not kept: no coefficient of the refit model is determined"}
+        return model, spectra, summaries
+    return refit, refit_spectra, refit_summaries
 
 
 def _with_mode_evidence(nested: NestedTest | None, model: StateSpaceModel,
@@ -298,7 +320,8 @@ def _before_the_reduction(session: IdentSession, fit: Fit, nested: NestedTest,
         session, full.model, answer_modes(full),
         [c["verdict"] for c in coefficient_summaries(spectra, session)], order=None,
         sweep=(), reduce_at=None, max_order=None, block_rows=None, validation=validation,
-        linear=nested.linear, progress=progress)
+        linear=nested.linear, progress=progress,
+        refit=lambda start: refit_on_its_record(session, start))
     if test is None or not test.supported:
         if test is not None:   # said, not only done: the answer stays the linear fit
             session.evidence.setdefault("nonlinear_vs_linear", {})["before_reduction"] = {

@@ -23,19 +23,78 @@ import numpy as np
 from fnsi_lab.ident.core.frequency_data import FrequencyData
 from fnsi_lab.ident.core.state_space import StateSpaceModel, dt_modal, make_model
 
-__all__ = ["refit_output_matrices", "state_response"]
+__all__ = ["refit_output_matrices", "state_response", "output_matrices_for",
+           "with_output_matrices"]
 
 
 def state_response(model: StateSpaceModel, data: FrequencyData) -> np.ndarray:
     """``X(k) = (z_k I - A)^{-1} B E(k)`` on the data's lines: shape (F, n), complex."""
+    return _state_response_at(model, np.asarray(data.z), np.asarray(data.E_physical))
+
+
+def _state_response_at(model: StateSpaceModel, z: np.ndarray, E: np.ndarray) -> np.ndarray:
+    """``X(k)`` for lines ``z`` (F,) and extended inputs ``E`` (F, m_e): shape (F, n)."""
     a, b = model.a_d, model.b_d
-    z, E = np.asarray(data.z), np.asarray(data.E_physical)
     mu, phi, ok = dt_modal(model)   # the model's cached eigen-decomposition
     if ok:
         modal = np.linalg.solve(phi, b) @ E.T                    # (n, F)
         return (phi @ (modal / (z[None, :] - mu[:, None]))).T
     eye = np.eye(a.shape[0])
     return np.stack([np.linalg.solve(zk * eye - a, b @ ek) for zk, ek in zip(z, E)])
+
+
+def output_matrices_for(model: StateSpaceModel, z: np.ndarray, E: np.ndarray, Y: np.ndarray,
+                        weights: np.ndarray | None = None, *, d_zero: bool,
+                        feedthrough: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """``C`` and ``D`` by weighted least squares for ``model``'s ``A`` and ``B``.
+
+    Parameters
+    ----------
+    model : StateSpaceModel
+    z : complex ndarray, shape (F,)
+        The lines (``exp(j w T)`` in the model's time base).
+    E : complex ndarray, shape (F, m_e)
+        Extended inputs on the lines, in the model's input units.
+    Y : complex ndarray, shape (F, p)
+        Outputs on the lines.
+    weights : ndarray, shape (F, p), optional
+        Per line and output, on the squared residual (None: equal).
+    d_zero : bool
+        Keep ``D = 0``.
+    feedthrough : int, optional
+        Only the first ``feedthrough`` columns of ``E`` enter the regression through ``D``
+        (the states still see all of ``E``); the caller has taken the others' share out
+        of ``Y``. None: every column.
+
+    Returns
+    -------
+    c_d, d_d : ndarray, shapes (p, n) and (p, m_d)
+        ``m_d`` is ``feedthrough`` or ``m_e``.
+    """
+    X = _state_response_at(model, np.asarray(z), np.asarray(E))            # (F, n)
+    E = E if feedthrough is None else E[:, :feedthrough]
+    R = X if d_zero else np.concatenate([X, E], axis=1)          # (F, n [+ m_d])
+    w = np.ones(Y.shape) if weights is None else np.sqrt(np.asarray(weights, float))
+    rows = []
+    for o in range(Y.shape[1]):   # each output's row: its own real least-squares problem
+        A = R * w[:, o:o + 1]
+        b = Y[:, o] * w[:, o]
+        theta, *_ = np.linalg.lstsq(np.vstack([A.real, A.imag]),
+                                    np.concatenate([b.real, b.imag]), rcond=None)
+        rows.append(theta)
+    theta = np.stack(rows)                                       # (p, n [+ m_e])
+    n = X.shape[1]
+    d_d = np.zeros((Y.shape[1], E.shape[1])) if d_zero else theta[:, n:]
+    return theta[:, :n], d_d
+
+
+def with_output_matrices(model: StateSpaceModel, c_d: np.ndarray,
+                         d_d: np.ndarray) -> StateSpaceModel:
+    """``model`` with other ``C`` and ``D`` (the same poles, ``B``, time base and names)."""
+    return make_model(model.a_d, model.b_d, c_d, d_d, sample_rate_hz=model.sample_rate_hz,
+                      n_inputs=model.n_inputs, input_names=model.input_names,
+                      output_names=model.output_names, time_base=model.time_base,
+                      bilinear_period_s=model.bilinear_period_s, _modal_dt=dt_modal(model))
 
 
 def refit_output_matrices(model: StateSpaceModel, data: FrequencyData, weights: np.ndarray, *,
@@ -59,27 +118,11 @@ def refit_output_matrices(model: StateSpaceModel, data: FrequencyData, weights: 
         The same poles, time base and names; ``model`` itself when the refit does not lower
         the weighted residual (a degenerate regression).
     """
-    X = state_response(model, data)                              # (F, n)
-    E = np.asarray(data.E_physical)                              # (F, m_e)
-    R = X if d_zero else np.concatenate([X, E], axis=1)          # (F, n [+ m_e])
-    Y = np.asarray(data.Y)
-    w = np.sqrt(np.asarray(weights, float))
-    n = X.shape[1]
-    rows = []
-    for o in range(Y.shape[1]):
-        A = R * w[:, o:o + 1]
-        b = Y[:, o] * w[:, o]
-        theta, *_ = np.linalg.lstsq(np.vstack([A.real, A.imag]),
-                                    np.concatenate([b.real, b.imag]), rcond=None)
-        rows.append(theta)
-    theta = np.stack(rows)                                       # (p, n [+ m_e])
-    c_d = theta[:, :n]
-    d_d = np.zeros_like(model.d_d) if d_zero else theta[:, n:]
+    z, E, Y = np.asarray(data.z), np.asarray(data.E_physical), np.asarray(data.Y)
+    c_d, d_d = output_matrices_for(model, z, E, Y, weights, d_zero=d_zero)
+    X = state_response(model, data)
     before = np.sum(weights * np.abs(Y - X @ model.c_d.T - E @ model.d_d.T) ** 2)
     after = np.sum(weights * np.abs(Y - X @ c_d.T - E @ d_d.T) ** 2)
     if not after < before:
         return model
-    return make_model(model.a_d, model.b_d, c_d, d_d, sample_rate_hz=model.sample_rate_hz,
-                      n_inputs=model.n_inputs, input_names=model.input_names,
-                      output_names=model.output_names, time_base=model.time_base,
-                      bilinear_period_s=model.bilinear_period_s, _modal_dt=dt_modal(model))
+    return with_output_matrices(model, c_d, d_d)

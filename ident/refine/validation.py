@@ -56,6 +56,11 @@ class SimulatedOutputs:
     info : dict
         ``iterations``, ``residual``, ``converged``, ``reason`` (balance), ``oversample``
         (time integration).
+    extended_input : complex ndarray, shape (R, F, m + s), or None
+        The harmonic balance's extended input on the compared lines: the measured forces
+        and the nonlinear forces of the model's own motion (None without a steady state).
+    z : complex ndarray, shape (F,), or None
+        The compared lines' ``z`` in the model's time base (harmonic balance).
     """
 
     frequency_hz: np.ndarray
@@ -64,6 +69,8 @@ class SimulatedOutputs:
     linear: np.ndarray
     method: str
     info: dict = field(default_factory=dict)
+    extended_input: np.ndarray | None = None
+    z: np.ndarray | None = None
 
 
 #: Relative residual ``||delta - Lambda G e(delta)|| / ||delta||`` at which the validation's
@@ -135,12 +142,14 @@ def balance_outputs(model: StateSpaceModel, basis: Sequence[Nonlinearity],
                  else BALANCE_TOLERANCE_SLOW)
     H = state.H[:, bal.data_index][:, keep]                          # (R, F_keep, s)
     nonlinear = linear + np.einsum("kps,rks->rkp", G_data[:, :, m:], H)
+    extended = np.concatenate([U[:, keep], H], axis=2)
     info = {"converged": True, "iterations": int(state.iterations),
             "residual": float(state.residual), "tolerance": tolerance,
             "predicted_lines": int(bal.F0),
             "predicted_band_hz": [float(bal.K.min() * data.sample_rate_hz / data.samples_per_period),
                                   float(bal.K.max() * data.sample_rate_hz / data.samples_per_period)]}
-    return SimulatedOutputs(f[keep], measured, nonlinear, linear, "harmonic balance", info)
+    return SimulatedOutputs(f[keep], measured, nonlinear, linear, "harmonic balance", info,
+                            extended_input=extended, z=np.asarray(data.z)[:F][keep])
 
 
 def prediction_band(band_hz: tuple[float, float], sample_rate_hz: float,

@@ -143,6 +143,10 @@ class NestedTest:
         The passivity test of each physical mode of the nonlinear answer
         (:func:`ident.robust.mode_support.mode_evidence`, :meth:`require_mode_evidence`);
         those that fail it are in ``modes["left_out"]``, not in the answer's modes.
+    answer_model : StateSpaceModel or None
+        The kept nonlinear answer's model when it is not the one tested: FNSI's with its
+        output matrices refit on its own simulated motion
+        (:func:`ident.linear_comparison.refit_on_its_record`); None: the tested model.
     """
 
     residual_nonlinear: float
@@ -164,6 +168,7 @@ class NestedTest:
     simulation: dict | None = None
     simulation_rejected: bool = False
     mode_evidence: tuple = ()
+    answer_model: StateSpaceModel | None = None
 
     @property
     def left_out_hz(self) -> list[float]:
