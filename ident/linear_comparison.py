@@ -307,7 +307,8 @@ def refit_on_its_record(session: IdentSession, model: StateSpaceModel) -> StateS
     session's record (:func:`ident.refine.own_motion.refit_on_own_motion`); the decision
     and its numbers go to ``session.evidence['output_refit']``. ``model`` itself when not
     applied: several records identified together (one refit would have to serve each), no
-    steady state, no gain, or a numerical failure (said in the evidence)."""
+    steady state, no gain, no coefficient of the refit determined, or a numerical failure
+    (said in the evidence)."""
     from fnsi_lab.ident.refine.own_motion import refit_on_own_motion
 
     if len(session.input.parts) >= 2:
@@ -324,7 +325,21 @@ def refit_on_its_record(session: IdentSession, model: StateSpaceModel) -> StateS
         return model
     session.timings_s["output_refit"] = time.perf_counter() - t0
     session.evidence["output_refit"] = refit.to_dict()
+    if refit.applied and not _some_coefficient_determined(session, refit.model):
+        # the nested test kept the answer for a determined coefficient
+        session.evidence["output_refit"].update(
+            applied=False, reason="not kept: no coefficient of the refit model is determined")
+        return model
     return refit.model
+
+
+def _some_coefficient_determined(session: IdentSession, model: StateSpaceModel) -> bool:
+    """Some coefficient of ``model`` is not judged ``not identifiable``."""
+    from fnsi_lab.ident.coefficient_summaries import (coefficient_summaries,
+                                                      session_coefficient_spectra)
+
+    summaries = coefficient_summaries(session_coefficient_spectra(session, model), session)
+    return any(c.get("verdict") != "not identifiable" for c in summaries)
 
 
 #: An output predicted worse than by the linear fit vetoes the nonlinear model unless its

@@ -224,8 +224,7 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
                     summaries = coefficient_summaries(spectra, session)   # the full model's
                     model = fit.model
             if nested is not None and nested.supported and nested.answer_model is not None:
-                model, spectra, summaries = _refit_answer(session, model, spectra, summaries,
-                                                          nested.answer_model)
+                model, spectra, summaries = _refit_answer(session, nested.answer_model)
             # an added mode without physical evidence leaves the answer's list (issue 29)
             nested = _with_mode_evidence(nested, model, session, summaries)
             session.timings_s["linear_fit"] = time.perf_counter() - t3
@@ -239,22 +238,13 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
                           coefficient_spectra=spectra, nested=nested)
 
 
-def _refit_answer(session: IdentSession, model: StateSpaceModel,
-                  spectra: CoefficientSpectra | None, summaries: list[dict],
-                  refit: StateSpaceModel
+def _refit_answer(session: IdentSession, refit: StateSpaceModel
                   ) -> tuple[StateSpaceModel, CoefficientSpectra | None, list[dict]]:
     """The kept answer's model with its output matrices refit on its own motion, and its
-    coefficients read from it (:func:`ident.linear_comparison.refit_on_its_record`); the
-    tested model and its coefficients when the refit leaves no coefficient determined (the
-    nested test kept the answer for a determined one)."""
-    refit_spectra = session_coefficient_spectra(session, refit)
-    refit_summaries = coefficient_summaries(refit_spectra, session)
-    if all(c.get("verdict") == "not identifiable" for c in refit_summaries):
-        session.evidence["output_refit"] = {
-            **session.evidence.get("output_refit", {}), "applied": False,
-            "reason": "not kept: no coefficient of the refit model is determined"}
-        return model, spectra, summaries
-    return refit, refit_spectra, refit_summaries
+    coefficients read from it (:func:`ident.linear_comparison.refit_on_its_record`, which
+    keeps a refit only when some coefficient of it is determined)."""
+    spectra = session_coefficient_spectra(session, refit)
+    return refit, spectra, coefficient_summaries(spectra, session)
 
 
 def _with_mode_evidence(nested: NestedTest | None, model: StateSpaceModel,
