@@ -23,16 +23,16 @@ import numpy as np
 from fnsi_lab.ident.core.frequency_data import FrequencyData
 from fnsi_lab.ident.core.state_space import StateSpaceModel, dt_modal, make_model
 
-__all__ = ["refit_output_matrices", "state_response", "output_matrices_for",
-           "with_output_matrices"]
+__all__ = ["refit_output_matrices", "state_response", "state_response_at",
+           "output_matrices_for", "with_output_matrices"]
 
 
 def state_response(model: StateSpaceModel, data: FrequencyData) -> np.ndarray:
     """``X(k) = (z_k I - A)^{-1} B E(k)`` on the data's lines: shape (F, n), complex."""
-    return _state_response_at(model, np.asarray(data.z), np.asarray(data.E_physical))
+    return state_response_at(model, np.asarray(data.z), np.asarray(data.E_physical))
 
 
-def _state_response_at(model: StateSpaceModel, z: np.ndarray, E: np.ndarray) -> np.ndarray:
+def state_response_at(model: StateSpaceModel, z: np.ndarray, E: np.ndarray) -> np.ndarray:
     """``X(k)`` for lines ``z`` (F,) and extended inputs ``E`` (F, m_e): shape (F, n)."""
     a, b = model.a_d, model.b_d
     mu, phi, ok = dt_modal(model)   # the model's cached eigen-decomposition
@@ -45,7 +45,8 @@ def _state_response_at(model: StateSpaceModel, z: np.ndarray, E: np.ndarray) -> 
 
 def output_matrices_for(model: StateSpaceModel, z: np.ndarray, E: np.ndarray, Y: np.ndarray,
                         weights: np.ndarray | None = None, *, d_zero: bool,
-                        feedthrough: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+                        feedthrough: int | None = None, states: np.ndarray | None = None
+                        ) -> tuple[np.ndarray, np.ndarray]:
     """``C`` and ``D`` by weighted least squares for ``model``'s ``A`` and ``B``.
 
     Parameters
@@ -65,24 +66,34 @@ def output_matrices_for(model: StateSpaceModel, z: np.ndarray, E: np.ndarray, Y:
         Only the first ``feedthrough`` columns of ``E`` enter the regression through ``D``
         (the states still see all of ``E``); the caller has taken the others' share out
         of ``Y``. None: every column.
+    states : complex ndarray, shape (F, n), optional
+        ``X`` when the caller has it (:func:`state_response_at` of ``z``, ``E``).
 
     Returns
     -------
     c_d, d_d : ndarray, shapes (p, n) and (p, m_d)
         ``m_d`` is ``feedthrough`` or ``m_e``.
     """
-    X = _state_response_at(model, np.asarray(z), np.asarray(E))            # (F, n)
-    E = E if feedthrough is None else E[:, :feedthrough]
+    X = (state_response_at(model, np.asarray(z), np.asarray(E)) if states is None
+         else states)                                                       # (F, n)
+    return _least_squares(X, E if feedthrough is None else E[:, :feedthrough], Y, weights,
+                          d_zero)
+
+
+def _least_squares(X: np.ndarray, E: np.ndarray, Y: np.ndarray, weights: np.ndarray | None,
+                   d_zero: bool) -> tuple[np.ndarray, np.ndarray]:
+    """``C`` (p, n) and ``D`` (p, m_d) for states ``X`` (F, n), feedthrough inputs ``E``
+    (F, m_d) and outputs ``Y`` (F, p), each output's row its own real least squares."""
     R = X if d_zero else np.concatenate([X, E], axis=1)          # (F, n [+ m_d])
     w = np.ones(Y.shape) if weights is None else np.sqrt(np.asarray(weights, float))
     rows = []
-    for o in range(Y.shape[1]):   # each output's row: its own real least-squares problem
+    for o in range(Y.shape[1]):
         A = R * w[:, o:o + 1]
         b = Y[:, o] * w[:, o]
         theta, *_ = np.linalg.lstsq(np.vstack([A.real, A.imag]),
                                     np.concatenate([b.real, b.imag]), rcond=None)
         rows.append(theta)
-    theta = np.stack(rows)                                       # (p, n [+ m_e])
+    theta = np.stack(rows)                                       # (p, n [+ m_d])
     n = X.shape[1]
     d_d = np.zeros((Y.shape[1], E.shape[1])) if d_zero else theta[:, n:]
     return theta[:, :n], d_d
@@ -118,9 +129,9 @@ def refit_output_matrices(model: StateSpaceModel, data: FrequencyData, weights: 
         The same poles, time base and names; ``model`` itself when the refit does not lower
         the weighted residual (a degenerate regression).
     """
-    z, E, Y = np.asarray(data.z), np.asarray(data.E_physical), np.asarray(data.Y)
-    c_d, d_d = output_matrices_for(model, z, E, Y, weights, d_zero=d_zero)
-    X = state_response(model, data)
+    E, Y = np.asarray(data.E_physical), np.asarray(data.Y)
+    X = state_response(model, data)                              # once: fit and residuals
+    c_d, d_d = _least_squares(X, E, Y, weights, d_zero)
     before = np.sum(weights * np.abs(Y - X @ model.c_d.T - E @ model.d_d.T) ** 2)
     after = np.sum(weights * np.abs(Y - X @ c_d.T - E @ d_d.T) ** 2)
     if not after < before:

@@ -42,7 +42,8 @@ import numpy as np
 
 from fnsi_lab.ident.core.basis import Nonlinearity
 from fnsi_lab.ident.core.frequency_data import FrequencyData
-from fnsi_lab.ident.core.output_refit import output_matrices_for, with_output_matrices
+from fnsi_lab.ident.core.output_refit import (output_matrices_for, state_response_at,
+                                              with_output_matrices)
 from fnsi_lab.ident.core.state_space import StateSpaceModel
 from fnsi_lab.ident.refine.validation import SimulatedOutputs, balance_outputs
 
@@ -118,9 +119,10 @@ def _least_squares_steps(model: StateSpaceModel, sim: SimulatedOutputs, d_zero: 
     z, E = np.tile(sim.z, R), sim.extended_input.reshape(R * F, -1)
     Y = sim.measured.reshape(R * F, p)
     m = model.n_inputs
-    every = output_matrices_for(model, z, E, Y, d_zero=d_zero)
+    X = state_response_at(model, z, E)                           # both directions' states
+    every = output_matrices_for(model, z, E, Y, d_zero=d_zero, states=X)
     c_d, d_u = output_matrices_for(model, z, E, Y - E[:, m:] @ model.d_d[:, m:].T,
-                                   d_zero=d_zero, feedthrough=m)
+                                   d_zero=d_zero, feedthrough=m, states=X)
     return [every, (c_d, np.concatenate([d_u, model.d_d[:, m:]], axis=1))]
 
 
