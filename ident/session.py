@@ -110,7 +110,8 @@ def prepare_session(inp: IdentInput, cfg: IdentConfig, *, search_order: int | No
                     select_search_order: bool = False, progress: Any = None,
                     motion_for: Sequence[Nonlinearity] = (),
                     basis_oversample: int | None = None,
-                    refused_as_linear: bool = False) -> IdentSession:
+                    refused_as_linear: bool = False,
+                    search: ParameterSearchResult | None = None) -> IdentSession:
     """Select the configured channels and build the frequency data.
 
     Basis parameters left to the data (``clearances: auto``, ``exponent: auto``...) are
@@ -127,6 +128,9 @@ def prepare_session(inp: IdentInput, cfg: IdentConfig, *, search_order: int | No
     with unknown parameters out instead of raising: the session is then the linear one (or
     keeps the fully given elements), and ``evidence["nonlinear_vs_linear"]`` says which
     elements were left out and why (docs/ident.md, "When the data cannot tell").
+    ``search``: a search of these elements made before (a search result taking another
+    minimum, :meth:`ParameterSearchResult.taking_alternative`): its basis is used and no
+    search is run.
 
     Raises
     ------
@@ -210,8 +214,10 @@ def prepare_session(inp: IdentInput, cfg: IdentConfig, *, search_order: int | No
         if not unknown:
             data = with_basis(data, cfg.nonlinearities)
     timings = {"prepare": time.perf_counter() - t0}
-    search = None
-    if unknown:  # the one place where 'auto' basis parameters become numbers
+    if unknown and search is not None:   # searched before: its parameters, no search
+        cfg = replace(cfg, nonlinearities=tuple(search.basis))
+        data = with_basis(data, cfg.nonlinearities)
+    elif unknown:  # the one place where 'auto' basis parameters become numbers
         t1 = time.perf_counter()
         bar = Progress(2, "basis parameters", enabled=bool(progress))
         search, kept, refusals = _search_or_leave_out(

@@ -5,7 +5,7 @@ estimate with its evidence, the search's outcome and their JSON summaries
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -104,6 +104,13 @@ class ParameterSearchResult:
     motion_noise_warnings : list of str
         The ``warnings`` about what the measured motion's noise does to the estimates (an
         output-error refinement that reads no measured motion makes them moot).
+    alternatives : list of dict
+        ``slip: auto`` of one element: the criterion's other local minima inside the
+        interval that beat the model without the element, best first (``value``,
+        ``objective``, ``order``, ``slipping_percent``, ``objective_without_element``;
+        :func:`ident.refine.slip_search.estimate_slips`). The identification tries the first
+        when the estimate leaves the element's coefficient undetermined
+        (docs/ident.md, "Two minima of the slip's criterion").
     """
 
     basis: tuple[Nonlinearity, ...]
@@ -116,6 +123,23 @@ class ParameterSearchResult:
     warnings: list = field(default_factory=list)
     noise_misfit: float = float("nan")
     motion_noise_warnings: list = field(default_factory=list)
+    alternatives: list = field(default_factory=list)
+
+    def taking_alternative(self, note: str) -> "ParameterSearchResult":
+        """This search with its first alternative as the estimate (one slip searched), the
+        estimate it replaces among the alternatives, and ``note`` among the warnings."""
+        (estimate,) = self.estimates
+        first, *rest = self.alternatives
+        u = estimate.unknown
+        value = float(first["value"])
+        basis = tuple(nl.with_parameters({u.parameter: value}) if i == u.element else nl
+                      for i, nl in enumerate(self.basis))
+        replaced = {"value": estimate.value, "objective": self.objective, "order": self.order,
+                    "slipping_percent": None,
+                    "objective_without_element": first.get("objective_without_element")}
+        return replace(self, basis=basis, estimates=[replace(estimate, value=value)],
+                       objective=float(first["objective"]), order=int(first["order"]),
+                       warnings=[*self.warnings, note], alternatives=[replaced, *rest])
 
     def for_element(self, name: str) -> list[ParameterEstimate]:
         """Estimates of the element ``name``."""
@@ -126,4 +150,5 @@ class ParameterSearchResult:
         return {"order": self.order, "objective": self.objective,
                 "n_evaluations": self.n_evaluations, "block_rows": self.block_rows,
                 "estimates": [e.to_dict() for e in self.estimates], "timings_s": self.timings_s,
-                "warnings": list(self.warnings), "noise_misfit": self.noise_misfit}
+                "warnings": list(self.warnings), "noise_misfit": self.noise_misfit,
+                "alternatives": [dict(a) for a in self.alternatives]}
