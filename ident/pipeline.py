@@ -28,6 +28,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from fnsi_lab import plain
+from fnsi_lab.progress import Progress
 from fnsi_lab.ident.coefficient_summaries import (coefficient_summaries,
                                                   session_coefficient_spectra)
 from fnsi_lab.ident.config import IdentConfig
@@ -240,10 +241,15 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
     if following is not None and nested is not None:
         search_taken, tried = following
         t_second = time.perf_counter()
+        if progress:   # why the sweep runs again
+            Progress(1, "second slip minimum").update(1, note=
+                f"{search_taken.alternatives[0]['value']:.4g} m (the first left the "
+                "coefficient undetermined)")
         try:
             second = identify_request(
                 inp, request, progress=progress, validation=validation, left_out=left_out,
-                searched_out=searched_out, search=search_taken.taking_alternative(
+                searched_out=_searched_out(session, left_out, searched_out),
+                search=search_taken.taking_alternative(
                     tried + ", was tried and passed the nested test against the same linear "
                     "fit (docs/ident.md, \"Two minima of the slip's criterion\")"),
                 linear=nested.linear,
@@ -280,7 +286,7 @@ def _next_slip_minimum(session: IdentSession, summaries: Sequence[dict],
     Why: the criterion can have two minima of nearly one value, the joint's slip and one
     where the element barely slips and its column nearly copies the measured motion
     (:func:`ident.refine.slip_search._other_minima`; the Bouc-Wen beam at 3 N, another
-    realisation: 498 um taken, the spring `not identifiable`; at 34 um it is 13.3e3 N/m
+    realisation: 498 um taken, the spring `not identifiable`; at 32 um it is 13.7e3 N/m
     `identified`, the law's 14e3; bench/RESULTS_beam.md, defect 6). The second candidate
     must pass the nested test against the same linear fit, which is always run for it: two
     candidates tried, neither chosen by its test alone (docs/ident.md, "Two minima of the

@@ -273,6 +273,7 @@ def _search_or_leave_out(data: FrequencyData, nonlinearities: Sequence[Nonlinear
     """
     pending = tuple(nonlinearities)
     refusals: list[tuple[str, str]] = []
+    beside: list[str] = []   # refused while searched beside another unknown element
     while has_unknown_parameters(pending):
         try:
             found = estimate_basis_parameters(data, pending, **search)
@@ -282,9 +283,48 @@ def _search_or_leave_out(data: FrequencyData, nonlinearities: Sequence[Nonlinear
                 raise
             unknown = [nl.name for nl in pending if nl.unknown]
             drop = [refusal.element] if refusal.element in unknown else unknown
+            if len(unknown) > len(drop):
+                beside += drop
             refusals += [(name, str(refusal)) for name in drop]
             pending = tuple(nl for nl in pending if nl.name not in drop)
+    alone = _searched_alone(data, nonlinearities, pending, beside, **search)
+    if alone is not None:
+        found, name = alone
+        return found, tuple(found.basis), [r for r in refusals if r[0] != name]
     return None, pending, refusals
+
+
+def _searched_alone(data: FrequencyData, nonlinearities: Sequence[Nonlinearity],
+                    given: Sequence[Nonlinearity], beside: Sequence[str], **search: Any
+                    ) -> tuple[ParameterSearchResult, str] | None:
+    """The search of the first element refused beside another (``beside``, in the order
+    refused) that the data tell when it is searched alone with the ``given`` elements, and
+    its name; None when every one is refused alone too.
+
+    Why: in a joint search one element can take up what the other explains and leave it
+    nothing to tell (aircraft-like GVT at 55 N, another realisation, a Jenkins element and a
+    stop both left to the data: the stop's clearance went to the bottom of its interval,
+    in contact all the time, a linear spring, and the slip to the top; the slip was refused
+    first, then the stop alone: the answer was the linear fit, where the Jenkins element
+    alone is kept). Only when nothing with unknown parameters is left: the elements the
+    combined search kept stand as they are.
+    """
+    if any(nl.unknown for nl in given):
+        return None
+    for name in beside:
+        element = next(nl for nl in nonlinearities if nl.name == name)
+        try:
+            found = estimate_basis_parameters(data, (*given, element), **search)
+        except NotIdentifiableError:
+            continue
+        others = plain.names([n for n in beside if n != name] or
+                             [nl.name for nl in nonlinearities if nl.unknown and nl.name != name],
+                             quote=True)
+        return replace(found, warnings=[
+            *found.warnings, f"{name!r} was searched again on its own and kept: searched "
+            f"beside {others}, its parameters were refused, and {others} was refused on its "
+            "own too (docs/ident.md, \"When the data cannot tell a basis parameter\")"]), name
+    return None
 
 
 def _never_acting(basis: Sequence[Nonlinearity], exc: DeadBasisError

@@ -171,7 +171,8 @@ def _other_minima(u: Unknown, value: float, points: np.ndarray, objective: np.nd
                   slipping: Callable[[float], float]) -> list[dict]:
     """The profile's other strict local minima inside the interval whose criterion beats the
     model without the element, best first, each moved to its parabola's vertex: ``{value,
-    objective, order, slipping_percent}``.
+    objective, order, slipping_percent, objective_without_element}`` (m, the criterion, the
+    order it chose, % of the period the element slips, the criterion without it).
 
     Why: the criterion can have two minima of nearly one value, the joint's slip and one
     where the element barely slips and its column nearly copies the measured motion (the
@@ -194,7 +195,7 @@ def _other_minima(u: Unknown, value: float, points: np.ndarray, objective: np.nd
         if not objective[i] < reference:
             break
         slip, _ = _parabola_minimum(points[i - 1:i + 2], objective[i - 1:i + 2],
-                                            lambda v: evaluate(v)[1])
+                                    lambda v: evaluate(v)[1])
         order, criterion_value = evaluate(slip)
         out.append({"value": slip, "objective": criterion_value, "order": order,
                     "slipping_percent": 100 * slipping(slip),
