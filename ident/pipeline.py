@@ -104,7 +104,8 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
                      left_out: Sequence[dict] = (),
                      searched_out: tuple[Sequence[dict], Sequence[str]] = ((), ()),
                      search: ParameterSearchResult | None = None,
-                     linear: Identification | None = None
+                     linear: Identification | None = None,
+                     second_candidate: bool = False
                      ) -> Identification:
     """Identify with resolved settings (:func:`ident.request.resolve_request`).
 
@@ -132,9 +133,12 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
         and its warnings, reported with the answer (the pass run again has no search).
     search : ParameterSearchResult, optional
         A search of the configured elements made before, taking another minimum
-        (:func:`_next_slip_minimum`): no search is run, and the nested test always is.
+        (:func:`_second_candidate`): no search is run.
     linear : Identification, optional
         The linear fit of this record, made before (the nested test's).
+    second_candidate : bool
+        This pass tries a second candidate after the first answered the linear fit
+        (:func:`_second_candidate`): the nested test always runs, and no third is tried.
 
     Returns
     -------
@@ -166,7 +170,7 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
     if searched_out[0]:   # the first pass's search: said again, not lost with its session
         evidence = session.evidence.setdefault("nonlinear_vs_linear", {})
         evidence["refused"] = [*searched_out[0], *evidence.get("refused", [])]
-        session.warnings[:0] = list(searched_out[1])
+    session.warnings[:0] = list(searched_out[1])
     if left_out:
         _report_left_out(session, left_out)
     fit = fit_session(session, order=order, sweep=sweep, reduce_at=reduce_at,
@@ -201,7 +205,7 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
     if session.config.nonlinearities and compare:
         verdicts = [str(c.get("verdict")) for c in summaries]
         modes = answer_modes(Fit(model, fit.method, fit.auto, fit.decomposition), output_error)
-        if (compare == "auto" and validation is None and search is None and verdicts
+        if (compare == "auto" and validation is None and not second_candidate and verdicts
                 and all(v == "identified" for v in verdicts)
                 and modes and len(session.input.parts) < 2):
             # every coefficient determined: the test would only confirm it (chain, SmallSat,
@@ -237,33 +241,37 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
             # an added mode without physical evidence leaves the answer's list (issue 29)
             nested = _with_mode_evidence(nested, model, session, summaries)
             session.timings_s["linear_fit"] = time.perf_counter() - t3
-    following = _next_slip_minimum(session, summaries, nested) if search is None else None
-    if following is not None and nested is not None:
-        search_taken, tried = following
+    candidate = (None if second_candidate or nested is None or nested.supported
+                 else _second_candidate(session, request, summaries, left_out))
+    if candidate is not None and nested is not None:
+        kwargs, tried = candidate
         t_second = time.perf_counter()
+        refused, said = _searched_out(session, left_out, searched_out)
+        alone = kwargs.pop("alone", None)
+        if alone is not None:   # searched again: no longer among the refused
+            refused = [r for r in refused if r.get("name") != alone]
+            said = [*(w for w in said if f"nonlinearity {alone!r}" not in w),
+                    f"{tried}; it was tried and passed the nested test against the same "
+                    "linear fit (docs/ident.md, \"A second candidate\")"]
         if progress:   # why the sweep runs again
-            Progress(1, "second slip minimum").update(1, note=
-                f"{search_taken.alternatives[0]['value']:.4g} m (the first left the "
-                "coefficient undetermined)")
+            Progress(1, "second candidate").update(1, note=tried.split(":")[0])
         try:
             second = identify_request(
-                inp, request, progress=progress, validation=validation, left_out=left_out,
-                searched_out=_searched_out(session, left_out, searched_out),
-                search=search_taken.taking_alternative(
-                    tried + ", was tried and passed the nested test against the same linear "
-                    "fit (docs/ident.md, \"Two minima of the slip's criterion\")"),
-                linear=nested.linear,
-                spent_s={**(spent_s or {}), "first_slip_minimum": time.perf_counter() - t0})
+                inp, kwargs.pop("request", request), progress=progress,
+                validation=validation, linear=nested.linear, second_candidate=True,
+                searched_out=(refused, said),
+                spent_s={**(spent_s or {}), "first_candidate": time.perf_counter() - t0},
+                **kwargs)
         except (IdentError, ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
             # the first answer stands: the second candidate is optional
-            session.warnings.append(f"{tried}, was tried too and failed ({exc})")
-            session.timings_s["second_slip_minimum"] = time.perf_counter() - t_second
+            session.warnings.append(f"{tried}; it was tried and failed ({exc})")
+            session.timings_s["second_candidate"] = time.perf_counter() - t_second
         else:
             if second.nested is not None and second.nested.supported:
                 return second
-            session.timings_s["second_slip_minimum"] = time.perf_counter() - t_second
+            session.timings_s["second_candidate"] = time.perf_counter() - t_second
             session.warnings.append(
-                tried + ", was tried too and not kept (" + (
+                f"{tried}; it was tried and not kept (" + (
                     second.nested.statement if second.nested is not None
                     else "no nested test") + ")")
     session.timings_s["total"] = time.perf_counter() - t0
@@ -276,42 +284,65 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
                           coefficient_spectra=spectra, nested=nested)
 
 
-def _next_slip_minimum(session: IdentSession, summaries: Sequence[dict],
-                       nested: NestedTest | None
-                       ) -> tuple[ParameterSearchResult, str] | None:
-    """The slip search and what its next minimum is, in words, when the minimum it took
-    left every coefficient of the element undetermined and the answer is the linear fit;
-    None otherwise (:meth:`ParameterSearchResult.taking_alternative` takes it).
+def _second_candidate(session: IdentSession, request: IdentRequest,
+                      summaries: Sequence[dict], left_out: Sequence[dict]
+                      ) -> tuple[dict[str, Any], str] | None:
+    """A second candidate model when the first answer is the linear fit because the elements
+    whose parameters the search found leave every coefficient undetermined: the keyword
+    arguments of :func:`identify_request` that try it and what it is, in words; None
+    otherwise. The second answer is kept only if it passes the nested test against the same
+    linear fit, which is always run for it (two candidates tried: neither is taken on its
+    verdicts alone; docs/ident.md, "A second candidate").
 
-    Why: the criterion can have two minima of nearly one value, the joint's slip and one
-    where the element barely slips and its column nearly copies the measured motion
-    (:func:`ident.refine.slip_search._other_minima`; the Bouc-Wen beam at 3 N, another
-    realisation: 498 um taken, the spring `not identifiable`; at 32 um it is 13.7e3 N/m
-    `identified`, the law's 14e3; bench/RESULTS_beam.md, defect 6). The second candidate
-    must pass the nested test against the same linear fit, which is always run for it: two
-    candidates tried, neither chosen by its test alone (docs/ident.md, "Two minima of the
-    slip's criterion").
+    - **The slip's next minimum** (one slip searched): the criterion can have two minima of
+      nearly one value, the joint's slip and one where the element barely slips and its
+      column nearly copies the measured motion (:func:`ident.refine.slip_search._other_minima`;
+      the Bouc-Wen beam at 3 N, another realisation: 498 um taken, the spring `not
+      identifiable`; at 32 um it is 13.7e3 N/m `identified`, the law's 14e3;
+      bench/RESULTS_beam.md, defect 6).
+    - **An element refused beside them, searched on its own** (``session.refused_beside``):
+      in a joint search one element can take up what the other explains (the independent
+      Iwan joint at 20 N, a Jenkins element and a stop both left to the data: the slip
+      refused at the top of its interval, the stop kept at a clearance, its contact
+      stiffnesses `not identifiable`; the Jenkins element alone is kept there).
     """
     search = session.parameter_search
-    if (search is None or not search.alternatives or nested is None or nested.supported
-            or len(search.estimates) != 1):
+    if search is None:
         return None
-    estimate = search.estimates[0]
-    element = next((nl for nl in session.config.nonlinearities
-                    if nl.name == estimate.unknown.name), None)
-    if element is None:
-        return None
-    verdicts = [c.get("verdict") for c in summaries if c.get("name") in element.coefficient_names]
+    searched = {e.unknown.name for e in search.estimates}
+    verdicts = [c.get("verdict") for c in summaries
+                if any(c.get("name") in nl.coefficient_names
+                       for nl in session.config.nonlinearities if nl.name in searched)]
     if not verdicts or any(v != "not identifiable" for v in verdicts):
         return None
-    nxt = search.alternatives[0]
-    return search, (
-        f"{element.name} slip: the information criterion's lowest minimum, "
-        f"{estimate.value:.4g} m (criterion {search.objective:.3g}), left the element's "
-        "coefficients undetermined and the answer the linear fit; its next minimum, "
-        f"{nxt['value']:.4g} m (slipping {nxt['slipping_percent']:.2g} % of the period, "
-        f"criterion {nxt['objective']:.3g}, {nxt['objective_without_element']:.3g} without "
-        "the element)")
+    if search.alternatives and len(search.estimates) == 1:
+        estimate, nxt = search.estimates[0], search.alternatives[0]
+        tried = (f"{estimate.unknown.name} slip: the information criterion's lowest minimum, "
+                 f"{estimate.value:.4g} m (criterion {search.objective:.3g}), left the "
+                 "element's coefficients undetermined and the answer the linear fit; its next "
+                 f"minimum is {nxt['value']:.4g} m (slipping {nxt['slipping_percent']:.2g} % of "
+                 f"the period, criterion {nxt['objective']:.3g}, "
+                 f"{nxt['objective_without_element']:.3g} without the element)")
+        return {"search": search.taking_alternative(
+            tried + "; it was tried and passed the nested test against the same linear fit "
+            "(docs/ident.md, \"A second candidate\")"), "left_out": left_out}, tried
+    if session.refused_beside:
+        alone = session.refused_beside[0]
+        dropped = [nl for nl in session.config.nonlinearities if nl.name in searched]
+        keep = [nl for nl in request.config.nonlinearities
+                if nl.name == alone or (nl.name not in searched and not nl.unknown)]
+        names = plain.names([nl.name for nl in dropped], quote=True)
+        tried = (f"{names} left no coefficient determined and the answer the linear fit; "
+                 f"{alone!r}, refused beside {names} by the parameter search, is searched on "
+                 "its own instead")
+        gone = [{"name": nl.name, "kind": nl.kind, "channels": dict(nl.channels),
+                 "parameters": [], "reason": f"nonlinearity {nl.name!r}: no coefficient "
+                 f"determined by the data; {alone!r} was searched on its own instead "
+                 "(docs/ident.md, \"A second candidate\")"} for nl in dropped]
+        return {"request": replace(request, config=replace(
+                    request.config, nonlinearities=tuple(keep))),
+                "left_out": [*left_out, *gone], "alone": alone}, tried
+    return None
 
 
 def _refit_answer(session: IdentSession, refit: StateSpaceModel

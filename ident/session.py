@@ -57,6 +57,10 @@ class IdentSession:
         Everything a user should read about the data (steady state, truth mismatch...).
     evidence : dict
         Decisions taken from the data on the way (``time_base_choice``), copied to the JSON.
+    refused_beside : tuple of str
+        Elements the parameter search refused while searched beside another element with
+        unknown parameters, which the search kept (:func:`ident.pipeline.identify_request`
+        searches the first on its own when the kept ones leave no coefficient determined).
     """
 
     config: IdentConfig
@@ -69,6 +73,7 @@ class IdentSession:
     evidence: dict = field(default_factory=dict)
     parameter_search: ParameterSearchResult | None = None
     cache: dict = field(default_factory=dict, repr=False)
+    refused_beside: tuple[str, ...] = ()
 
 
 def apply_recording_truth(cfg: IdentConfig, truth: Mapping | None) -> tuple[IdentConfig, list[str]]:
@@ -214,13 +219,14 @@ def prepare_session(inp: IdentInput, cfg: IdentConfig, *, search_order: int | No
         if not unknown:
             data = with_basis(data, cfg.nonlinearities)
     timings = {"prepare": time.perf_counter() - t0}
+    beside: list[str] = []
     if unknown and search is not None:   # searched before: its parameters, no search
         cfg = replace(cfg, nonlinearities=tuple(search.basis))
         data = with_basis(data, cfg.nonlinearities)
     elif unknown:  # the one place where 'auto' basis parameters become numbers
         t1 = time.perf_counter()
         bar = Progress(2, "basis parameters", enabled=bool(progress))
-        search, kept, refusals = _search_or_leave_out(
+        search, kept, refusals, beside = _search_or_leave_out(
             data, cfg.nonlinearities, leave_out=refused_as_linear,
             order=int(search_order or cfg.order or DEFAULT_SEARCH_ORDER),
             d_zero=cfg.d_zero_for(quantity), weighted=weighted,
@@ -235,7 +241,7 @@ def prepare_session(inp: IdentInput, cfg: IdentConfig, *, search_order: int | No
         timings["parameter_search"] = time.perf_counter() - t1
     return IdentSession(config=cfg, input=inp, data=data, weighted=weighted,
                         d_zero=cfg.d_zero_for(quantity), parameter_search=search,
-                        timings_s=timings, evidence=evidence,
+                        timings_s=timings, evidence=evidence, refused_beside=tuple(beside),
                         warnings=list(inp.notes) + truth_notes + left_out
                         + [str(w.message) for w in caught]
                         + (list(search.warnings) if search is not None else []))
@@ -256,7 +262,7 @@ def no_excited_line(data: FrequencyData) -> str:
 def _search_or_leave_out(data: FrequencyData, nonlinearities: Sequence[Nonlinearity], *,
                          leave_out: bool, **search: Any
                          ) -> tuple[ParameterSearchResult | None, tuple[Nonlinearity, ...],
-                                    list[tuple[str, str]]]:
+                                    list[tuple[str, str]], list[str]]:
     """The parameter search; with ``leave_out``, an element the data cannot tell is left out
     and the search is run again on the others (a stop never touched at a low level leaves
     the friction element beside it to be searched alone).
@@ -270,6 +276,10 @@ def _search_or_leave_out(data: FrequencyData, nonlinearities: Sequence[Nonlinear
     refusals : list of (element name, reason)
         One per element left out (every element with unknown parameters, when a refusal
         does not name one).
+    beside : list of str
+        The elements left out that were refused beside another element with unknown
+        parameters, which the search kept (empty when one of them was kept alone,
+        :func:`_searched_alone`).
     """
     pending = tuple(nonlinearities)
     refusals: list[tuple[str, str]] = []
@@ -277,7 +287,7 @@ def _search_or_leave_out(data: FrequencyData, nonlinearities: Sequence[Nonlinear
     while has_unknown_parameters(pending):
         try:
             found = estimate_basis_parameters(data, pending, **search)
-            return found, tuple(found.basis), refusals
+            return found, tuple(found.basis), refusals, beside
         except NotIdentifiableError as refusal:
             if not leave_out:
                 raise
@@ -290,8 +300,8 @@ def _search_or_leave_out(data: FrequencyData, nonlinearities: Sequence[Nonlinear
     alone = _searched_alone(data, nonlinearities, pending, beside, **search)
     if alone is not None:
         found, name = alone
-        return found, tuple(found.basis), [r for r in refusals if r[0] != name]
-    return None, pending, refusals
+        return found, tuple(found.basis), [r for r in refusals if r[0] != name], []
+    return None, pending, refusals, []
 
 
 def _searched_alone(data: FrequencyData, nonlinearities: Sequence[Nonlinearity],

@@ -110,7 +110,7 @@ class ParameterSearchResult:
         ``objective``, ``order``, ``slipping_percent``, ``objective_without_element``;
         :func:`ident.refine.slip_search.estimate_slips`). The identification tries the first
         when the estimate leaves the element's coefficient undetermined
-        (docs/ident.md, "Two minima of the slip's criterion").
+        (docs/ident.md, "A second candidate").
     """
 
     basis: tuple[Nonlinearity, ...]
