@@ -191,7 +191,8 @@ def identify_request(inp: IdentInput, request: IdentRequest, *, progress: Any = 
                     if nl.name not in {u["name"] for u in undetermined}))),
             progress=progress, spent_s=spent, validation=validation,
             left_out=[*left_out, *undetermined], searched_out=_searched_out(session, left_out,
-                                                                           searched_out))
+                                                                           searched_out),
+            linear=linear, second_candidate=second_candidate)
     compare = session.config.compare_linear
     nested = None
     if validation is not None and not (session.config.nonlinearities and compare):
