@@ -275,9 +275,8 @@ def test_a_linear_answer_predicts_another_realisation_as_well_as_the_record_allo
         assert row["linear_error_db"] < limit + 5.0, (row, floor)
 
 
-@pytest.mark.parametrize("stop", [False, True], ids=["jenkins", "jenkins-and-stop"])
 def test_the_slips_second_minimum_is_tried_when_the_first_leaves_the_spring_undetermined(
-        tmp_path, beam, stop):
+        tmp_path, beam):
     # The beam at 3 N alone (joint at 18x its yield displacement): the slip's information
     # criterion has two minima of nearly one value, 6.6e-3 at 498 um (the element slipping
     # 0.24 % of the period: its column nearly copies the motion) and 7.4e-3 at 32 um (near the
@@ -287,14 +286,15 @@ def test_the_slips_second_minimum_is_tried_when_the_first_leaves_the_spring_unde
     # realisation 7.7-12.3 dB better than the linear fit (bench/RESULTS_beam.md, defect 6).
     # The limits: 20 % on the stiffness (the Jenkins element is not the Bouc-Wen law; its
     # standard deviation over the lines is 11 %), 3 dB on the prediction.
-    # With a stop beside it (clearances: auto; the law has no clearance) the joint search
-    # refused the slip, then the stop on its own, and the answer was the linear fit: the
-    # Jenkins element is now searched again on its own, and ends as above.
+    # The config has a stop beside it (clearances: auto; the law has no clearance), as a lab
+    # writes for a joint with friction and clearance: the joint search refused the slip, then
+    # the stop on its own; the Jenkins element is now searched again on its own, takes the
+    # 498 um minimum, and ends as above (the Jenkins config alone takes the same two steps
+    # after the first; one run covers both, the suite's time is counted).
     import fnsi_lab
 
-    config = _level_and_its_twin(beam, tmp_path, "3", "slip: auto}" + (
-        "\n  - {name: gap, kind: trilinear, channels: {jointL: 1, jointR: -1}, "
-        "clearances: auto}" if stop else ""))
+    config = _level_and_its_twin(beam, tmp_path, "3", "slip: auto}\n  - {name: gap, kind: "
+                                 "trilinear, channels: {jointL: 1, jointR: -1}, clearances: auto}")
     run = _cli("ident", str(tmp_path / "beam-rms3.npz"), "--config", str(config), "--auto",
                "--json", str(tmp_path / "j.json"))
     assert run.returncode == 0, run.stderr
@@ -307,9 +307,8 @@ def test_the_slips_second_minimum_is_tried_when_the_first_leaves_the_spring_unde
     (spring,) = doc["coefficients"]
     assert spring["verdict"] == "identified" and spring["value"] == pytest.approx(14e3, rel=0.2)
     assert "next minimum" in run.stdout + run.stderr
-    if stop:
-        assert [r["name"] for r in doc["nonlinear_vs_linear"]["refused"]] == ["gap"]
-        assert "'joint' was searched again on its own and kept" in run.stdout + run.stderr
+    assert [r["name"] for r in doc["nonlinear_vs_linear"]["refused"]] == ["gap"]
+    assert "'joint' was searched again on its own and kept" in run.stdout + run.stderr
     check = fnsi_lab.validate_model(str(tmp_path / "j.json"), str(tmp_path / "v" / "beam-rms3.npz"))
     for row in check.to_json()["outputs"]:
         assert row["error_db"] < row["linear_fit_error_db"] - 3.0, row
